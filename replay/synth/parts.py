@@ -9,6 +9,7 @@ needs).
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -22,6 +23,7 @@ from replay.presets import SPROCKET_R_TIP_MM as _SPROCKET_R_TIP
 from replay.presets import SPROCKET_T_MM as _SPROCKET_T
 from replay.presets import SPROCKET_TEETH as _SPROCKET_TEETH
 from replay.presets import PartKind
+from replay.synth.trig import cos_sin
 
 # Display colours (RGB, before shading).
 PART_COLOURS: dict[str, tuple[int, int, int]] = {
@@ -64,7 +66,8 @@ Solid = tuple[list[Primitive], Primitive | None]
 
 def _regular_polygon(n: int, circumradius: float, phase: float = 0.0) -> np.ndarray:
     a = phase + 2.0 * np.pi * np.arange(n) / n
-    return np.stack([circumradius * np.cos(a), circumradius * np.sin(a)], axis=1)
+    c, s = cos_sin(a)  # the C library's, not numpy's SIMD kernels: the same vertices on every CPU
+    return np.stack([circumradius * c, circumradius * s], axis=1)
 
 
 def _prism(poly: np.ndarray, z0: float, z1: float, R: np.ndarray | None = None) -> Primitive:
@@ -89,7 +92,7 @@ _ALONG_X = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # map
 
 
 def _cylinder_x(radius: float, x0: float, x1: float, sides: int = 40, phase: float = 0.0) -> Primitive:
-    return _prism(_regular_polygon(sides, radius / np.cos(np.pi / sides), phase), x0, x1, _ALONG_X)
+    return _prism(_regular_polygon(sides, radius / math.cos(np.pi / sides), phase), x0, x1, _ALONG_X)
 
 
 def _hexagon(s: float, phase: float = 0.0) -> np.ndarray:
@@ -108,7 +111,7 @@ def part_solid(name: str, rng: np.random.Generator) -> Solid:
         return [("sphere", np.zeros(3), 10.0)], None
     if name in ("zinc_nuts", "black_nuts"):
         body = _prism(_hexagon(_HEX_S, rng.uniform(0, np.pi / 3)), -_HEX_M / 2, _HEX_M / 2)
-        hole = _prism(_regular_polygon(24, _NUT_BORE / 2 / np.cos(np.pi / 24)), -_HEX_M, _HEX_M)
+        hole = _prism(_regular_polygon(24, _NUT_BORE / 2 / math.cos(np.pi / 24)), -_HEX_M, _HEX_M)
         return [body], hole
     if name == "rods":
         return [_cylinder_x(8.0, -40.0, 40.0, phase=rng.uniform(0, 0.2))], None
@@ -119,7 +122,7 @@ def part_solid(name: str, rng: np.random.Generator) -> Solid:
         return [shaft, head], None
     if name == "sprockets":
         half = _SPROCKET_T / 2
-        prims = [_prism(_regular_polygon(64, _SPROCKET_R_ROOT / np.cos(np.pi / 64)), -half, half)]
+        prims = [_prism(_regular_polygon(64, _SPROCKET_R_ROOT / math.cos(np.pi / 64)), -half, half)]
         for k in range(_SPROCKET_TEETH):
             a = 2 * np.pi * k / _SPROCKET_TEETH
             # trapezoidal tooth, 6 mm wide at the root, 2.5 mm at the tip, radially outward
@@ -127,10 +130,10 @@ def part_solid(name: str, rng: np.random.Generator) -> Solid:
                 [[_SPROCKET_R_ROOT - 1.0, -3.0], [_SPROCKET_R_TIP, -1.25], [_SPROCKET_R_TIP, 1.25],
                  [_SPROCKET_R_ROOT - 1.0, 3.0]]
             )
-            c, s = np.cos(a), np.sin(a)
+            c, s = math.cos(a), math.sin(a)
             poly = local @ np.array([[c, s], [-s, c]])
             prims.append(_prism(poly, -half, half))
-        hole = _prism(_regular_polygon(32, _SPROCKET_BORE / np.cos(np.pi / 32)), -_SPROCKET_T, _SPROCKET_T)
+        hole = _prism(_regular_polygon(32, _SPROCKET_BORE / math.cos(np.pi / 32)), -_SPROCKET_T, _SPROCKET_T)
         return prims, hole
     raise KeyError(name)
 

@@ -22,7 +22,9 @@ as the balls do not overlap; the generator drops each ball onto the others' heig
 at its grid nodes only, so two may share a thin lens between nodes, and a point inside such a lens
 is judged by the nearer centre's ball alone: an error no larger than the lens is thick).
 The hand-made parts are prisms of convex polygons (a bore subtracted, teeth added): their meshes
-(:func:`solid_mesh`) are exact, as the ray-traced generator's meshes are its scene.
+(:func:`solid_mesh`) are exact, as the ray-traced generator's meshes are its scene. Their polar angles,
+sines and cosines are the C library's (:mod:`replay.synth.trig`), not numpy's SIMD kernels, whose
+last bits move with the CPU: a log's ``part_model.ply`` has the same bytes on every machine.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
+
+from replay.synth.trig import atan2, cos_sin
 
 if TYPE_CHECKING:
     import open3d as o3d
@@ -75,7 +79,8 @@ def _exit_distance(poly: np.ndarray, angles: np.ndarray) -> np.ndarray:
     edge = np.roll(poly, -1, axis=1) - poly
     normal = np.stack([edge[..., 1], -edge[..., 0]], axis=-1)  # outward, (P, n, 2)
     offset = np.einsum("pij,pij->pi", normal, poly)  # (P, n)
-    dn = np.cos(angles)[:, :, None] * normal[:, None, :, 0] + np.sin(angles)[:, :, None] * normal[:, None, :, 1]
+    c, s = cos_sin(angles)
+    dn = c[:, :, None] * normal[:, None, :, 0] + s[:, :, None] * normal[:, None, :, 1]
     with np.errstate(divide="ignore", invalid="ignore"):
         t = offset[:, None, :] / dn
     t_exit = np.where(dn > 1e-15, t, np.inf).min(axis=2)
@@ -107,7 +112,7 @@ def _segment_crossings(polys: Sequence[np.ndarray]) -> np.ndarray:
 def _angles(points: np.ndarray) -> np.ndarray | None:
     """Sorted polar angles (P, A) of the points (P, k, 2) of each row, the breakpoints of star-shaped
     outlines; None when a row holds two (nearly) equal angles (the rows then differ in count)."""
-    ang = np.sort(np.mod(np.arctan2(points[..., 1], points[..., 0]), 2 * np.pi), axis=1)
+    ang = np.sort(np.mod(atan2(points[..., 1], points[..., 0]), 2 * np.pi), axis=1)
     gaps = np.diff(np.concatenate([ang, ang[:, :1] + 2 * np.pi], axis=1), axis=1)
     if (gaps <= 1e-10).any():
         if len(ang) > 1:
@@ -137,7 +142,7 @@ def _extrusion(angles: np.ndarray, outer: np.ndarray, z0: float, z1: float, *, b
     through bore, an optional hole in the top cap (where another prism continues) and the bottom cap
     left out when ``cap0`` is False. Walls are cut every :data:`WALL_SEGMENT_MM` along the axis."""
     P, n = angles.shape
-    c, s = np.cos(angles), np.sin(angles)
+    c, s = cos_sin(angles)
     zs = np.linspace(z0, z1, max(1, int(np.ceil((z1 - z0) / WALL_SEGMENT_MM))) + 1)
     rings = [(outer, z) for z in zs]
     if bore is not None:

@@ -56,19 +56,12 @@ def _digest(fits: list[PartFit]) -> list[tuple[str, int, str]]:
 
 
 #: the seventh round's fits of :func:`_scene` (the previous tree, 31bd8ba, its defaults): (Err, pixels, sha256 of
-#: pose and pixels). Made again by 31bd8ba with this tree's exact ray casts (docs/fits.md, "The fits' ray casts
-#: exact"): one set for every CPU, where Embree's last bits had made two
-SEVENTH_DIGEST = [("1.4615266065797075", 1365, "1103cccf17b448d5"), ("0.04700742103635588", 984, "6c991f1210b7b76a"),
-                  ("0.04658487974996509", 927, "d9261de41910866b"), ("0.05050391625080091", 819, "0665e144c737a27f"),
-                  ("0.04976910156457358", 764, "fa73465df50c968f"), ("0.05051388193319566", 703, "67b785d654cb630c")]
-
-
-#: the same where numpy runs without AVX-512 (a CPU without it): the test nut's mesh is built with ``np.sin``/
-#: ``np.cos``, whose AVX-512 and AVX2 paths differ in the last bit; the poses follow (the same Err and pixel counts).
-#: See test_fits_claims.py ``OLD_NUMPY_AVX2``
-SEVENTH_DIGEST_NUMPY_AVX2 = [("1.4615266065797075", 1365, "4a84f87bb56a948f"), ("0.04700742103635588", 984, "7fa66b6b12c22991"),
-                             ("0.04658487974996509", 927, "0d2d8513e5435534"), ("0.05050391625080091", 819, "8058ef0cc20b3daa"),
-                             ("0.04976910156457358", 764, "811aa06ff08f22d2"), ("0.05051388193319566", 703, "382924585240e42b")]
+#: pose and pixels), with the exact ray casts (docs/fits.md, "The fits' ray casts exact"). One set for every CPU since
+#: the test nut's mesh no longer takes numpy's ``np.arctan2`` (docs/fits.md, "The part meshes built the same on every
+#: CPU"): the set made at the merge of h/fitray with numpy kept to AVX2, which every CPU now gives
+SEVENTH_DIGEST = [("1.4615266065797075", 1365, "4a84f87bb56a948f"), ("0.04700742103635588", 984, "7fa66b6b12c22991"),
+                  ("0.04658487974996509", 927, "0d2d8513e5435534"), ("0.05050391625080091", 819, "8058ef0cc20b3daa"),
+                  ("0.04976910156457358", 764, "811aa06ff08f22d2"), ("0.05051388193319566", 703, "382924585240e42b")]
 
 
 def test_a_part_a_wrong_fit_took_is_fitted_again():
@@ -82,7 +75,7 @@ def test_a_part_a_wrong_fit_took_is_fitted_again():
     old = fit_prepared(xyz, zone, model, intrinsics=K_TEST, params=SEVENTH)
     dt, da, err = _nearest(old, model)
     assert dt > 2.0 and err > 1.0  # the cause: a wrong fit on the nut
-    assert _digest(old) in (SEVENTH_DIGEST, SEVENTH_DIGEST_NUMPY_AVX2)  # first_err_ratio=0, fine_points=0: the previous fits to the bit
+    assert _digest(old) == SEVENTH_DIGEST  # first_err_ratio=0, fine_points=0: the previous fits to the bit
     new = fit_prepared(xyz, zone, model, intrinsics=K_TEST)
     dt, da, err = _nearest(new, model)
     assert dt < 0.05 and da < 0.5 and err < 0.1
