@@ -8,6 +8,7 @@ root; ``replay/pipeline/viz.py`` is the only module that imports rerun.
 from __future__ import annotations
 
 import ast
+import functools
 import subprocess
 import sys
 from pathlib import Path
@@ -19,11 +20,19 @@ ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("zcut", "replay", "annotate", "studies", "cli")
 
 
-def _imports(path: Path) -> list[tuple[int, str]]:
-    """(line, absolute module name) of every import in a file: at module level, inside functions,
-    under ``if TYPE_CHECKING`` alike (relative imports stay inside their package)."""
+@functools.cache
+def _parsed(path: Path) -> ast.Module:
+    """The syntax tree of a package file, parsed once per session: the checks below only read it (each
+    check parsed every file of the packages again, ~1.9 s a check)."""
+    return ast.parse(path.read_text(), filename=str(path))
+
+
+def _imports(path: Path, tree: ast.Module | None = None) -> list[tuple[int, str]]:
+    """(line, absolute module name) of every import in a file (``tree``: its syntax tree, else parsed
+    here): at module level, inside functions, under ``if TYPE_CHECKING`` alike (relative imports stay
+    inside their package)."""
     found = []
-    for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+    for node in ast.walk(tree if tree is not None else ast.parse(path.read_text(), filename=str(path))):
         if isinstance(node, ast.Import):
             found += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
@@ -35,6 +44,13 @@ def _package_files():
     for pkg in LAYERS:
         for path in sorted((ROOT / pkg).rglob("*.py")):
             yield pkg, path
+
+
+@functools.cache
+def _package_imports() -> tuple[tuple[str, Path, int, str], ...]:
+    """(package, path, line, module) of every import of every package file, found once per session."""
+    return tuple((pkg, path, line, module) for pkg, path in _package_files()
+                 for line, module in _imports(path, _parsed(path)))
 
 
 def test_importing_zcut_keeps_io_modules_out():
@@ -125,8 +141,8 @@ def test_the_library_imports_no_command_line():
     """Every command and its options live in cli/ (issue 34): the library takes options objects
     (``studies.sweep.SweepOptions``, ``studies.batch.BatchOptions``, ``annotate.accuracy.AccuracyOptions``),
     never an argparse Namespace, and no package of it has a ``commands`` module."""
-    found = [f"{path.relative_to(ROOT)}:{line} imports {module}" for pkg, path in _package_files()
-             if pkg in LIBRARY for line, module in _imports(path) if _is_command_line(module)]
+    found = [f"{path.relative_to(ROOT)}:{line} imports {module}" for pkg, path, line, module in _package_imports()
+             if pkg in LIBRARY and _is_command_line(module)]
     assert found == [], "the library imports a command line:\n" + "\n".join(found)
     modules = sorted(str(p.relative_to(ROOT)) for pkg in LIBRARY for p in (ROOT / pkg).rglob("commands*"))
     assert modules == [], f"commands outside cli/: {modules}"
@@ -153,8 +169,7 @@ def test_no_package_imports_one_above_it():
     """zcut < replay < annotate < studies < cli: an import that points up is a cycle waiting to
     happen (and drags a higher layer's dependencies into a lower one's users)."""
     rank = {pkg: i for i, pkg in enumerate(LAYERS)}
-    up = [f"{path.relative_to(ROOT)}:{line} imports {module}"
-          for pkg, path in _package_files() for line, module in _imports(path)
+    up = [f"{path.relative_to(ROOT)}:{line} imports {module}" for pkg, path, line, module in _package_imports()
           if rank.get(module.split(".")[0], -1) > rank[pkg]]
     assert up == [], "imports that point up the layers:\n" + "\n".join(up)
 
@@ -163,7 +178,8 @@ def test_the_pipeline_imports_nothing_from_the_scene_generator():
     """replay/pipeline sits below replay/synth: the generator may use the pipeline (a sample's bin
     model), never the other way (a frame's true pose is decoded by replay.logs.poses)."""
     up = [f"{path.relative_to(ROOT)}:{line} imports {module}"
-          for path in sorted((ROOT / "replay" / "pipeline").rglob("*.py")) for line, module in _imports(path)
+          for path in sorted((ROOT / "replay" / "pipeline").rglob("*.py"))
+          for line, module in _imports(path, _parsed(path))
           if module == "replay.synth" or module.startswith("replay.synth.")]
     assert up == [], "replay/pipeline imports replay/synth:\n" + "\n".join(up)
 
@@ -182,8 +198,8 @@ def test_every_package_is_on_the_layer_list():
 def test_only_the_viewer_module_imports_rerun():
     """Rerun (its SDK, its threads, its 4 GB of address space) stays behind replay/pipeline/viz.py (and
     compare_viz.py, the recording of ``zcut compare``, and rerun_arrow.py, the class tables both log)."""
-    importers = sorted({str(path.relative_to(ROOT)) for _, path in _package_files()
-                        for _, module in _imports(path) if module.split(".")[0] == "rerun"})
+    importers = sorted({str(path.relative_to(ROOT)) for _, path, _, module in _package_imports()
+                        if module.split(".")[0] == "rerun"})
     assert importers == ["replay/pipeline/compare_viz.py", "replay/pipeline/rerun_arrow.py", "replay/pipeline/viz.py"]
 
 
@@ -200,7 +216,7 @@ def _module_graph() -> dict[str, set[str]]:
     graph: dict[str, set[str]] = {}
     for name, path in files.items():
         edges = set()
-        for node in ast.walk(ast.parse(path.read_text(), filename=str(path))):
+        for node in ast.walk(_parsed(path)):
             if isinstance(node, ast.Import):
                 edges |= {a.name for a in node.names if a.name in files}
             elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:

@@ -2,9 +2,10 @@
 
 For every field of every stage's parameters (and the config's top-level keys), a non-default value
 is set through a config file, and `zcut replay`, `accuracy`, `annotate` (the page's frames), `sweep`
-and `batch` are run on the same small synthetic log with a bin model. Each command's result must
-change from its result with the defaults, and agree with the replay's (the same masks' counts), or
-the field is listed in :data:`UNCHANGED` with the reason it cannot change this log's result.
+and `batch` are run on the same small synthetic log with a bin model (the `explained` fields on a log
+of :data:`OWN_FRAMES` frame: each command fits the part model on every frame). Each command's result
+must change from its result with the defaults, and agree with the replay's (the same masks' counts),
+or the field is listed in :data:`UNCHANGED` with the reason it cannot change this log's result.
 
 A field that one command honours and another ignores (a configured `connectivity = 4` that `sweep`
 honoured and `replay` ignored) fails here.
@@ -19,7 +20,7 @@ import json
 
 import pyarrow.parquet as pq
 import pytest
-from cli_helpers import main, synth_with_bin_model
+from cli_helpers import main, synth_log, synth_with_bin_model
 
 from replay.pipeline import config as cfg
 
@@ -58,6 +59,10 @@ VALUES: dict[str, dict[str, str]] = {
 #: sections whose method runs with a methods list of its own (the base values are the defaults): its
 #: fields are compared with the defaults of that same list
 OWN: dict[str, str] = {"explained": 'methods = ["zcut", "sor", "explained"]\n'}
+#: the log the OWN sections run on: one frame (each command fits the part model on every frame, ~1 CPU s a
+#: frame and command), of a seed whose frame shows every field's change (seed 21's first frame shows no
+#: change of explained.fit_max_overlap: only its second frame has overlapping fits)
+OWN_FRAMES, OWN_SEED = 1, 24
 #: the sections of methods that run only when the methods list names them: their fields are set with
 #: every method named, and compared with the defaults of that same list
 BANK = ("radius", "cluster", "speckle", "window", "mixed_pixel", "suspects", "zcut_top")
@@ -248,6 +253,8 @@ def _signatures(log, model, config, out_dir) -> dict:
 def setup(tmp_path_factory):
     d = tmp_path_factory.mktemp("every_parameter")
     log, _, model = synth_with_bin_model(d, parts="rods", seed=21, size="180x240")
+    # the OWN sections' log
+    synth_log(d / "own.mcap", parts="rods", frames=OWN_FRAMES, seed=OWN_SEED, size="180x240")
     _ball_mesh(d / "ball.stl")  # another part's mesh: explained.part_model
     return d, log, model
 
@@ -263,7 +270,7 @@ def own_baseline(setup):
     d, log, model = setup
     config = d / "explained.toml"
     config.write_text(_config_text(None, own="explained"))
-    return _signatures(log, model, config, d / "explained")
+    return _signatures(d / "own.mcap", model, config, d / "explained")
 
 
 @pytest.fixture(scope="module")
@@ -292,7 +299,7 @@ def test_every_parameter_changes_every_command(setup, request, field, tmp_path):
     baseline = request.getfixturevalue("own_baseline" if own else "bank_baseline" if bank else "baseline")
     config = tmp_path / "c.toml"
     config.write_text(_config_text(field, bank=bank, own=own).replace("{part_mesh}", str(d / "ball.stl")))
-    got = _signatures(log, model, config, tmp_path / "field")
+    got = _signatures(d / "own.mcap" if own else log, model, config, tmp_path / "field")
     changed = {cmd for cmd in got if got[cmd] != baseline[cmd]}
     if field in UNCHANGED:
         assert not changed, f"{field} changes {sorted(changed)}: remove it from UNCHANGED"

@@ -209,6 +209,7 @@ def test_report_writes_every_plot_and_one_self_contained_page(tmp_path):
     assert "<mark>" in page_text(path)  # tuned.toml's changed lines are marked
     assert "zcut replay" in text and f"--config {tmp_path / 'tuned.toml'}" in text
     assert "zcut sweep '/data/<scan & co>.mcap'" in text
+    assert f"zcut compare '/data/<scan & co>.mcap' --a zcut --b {tmp_path / 'tuned.toml'}" in text
     assert "larger d_max flags more outliers" in text and "smaller Δd flags more outliers" in text
     for role in ("tuned", "nominal", "chosen", "SOR tuned", "SOR chosen"):
         assert role in text
@@ -408,14 +409,21 @@ def test_tuning_says_when_the_grids_best_z_cut_lies_outside_the_papers_ranges(tm
 
 def test_the_report_gives_the_compare_command_of_its_config_against_tuned(tmp_path):
     """The report's reproduce section ends with ``zcut compare`` of the sweep's own config (A) against
-    ``tuned.toml`` (B) on the same logs, with the sweep's region and truth (issue 33)."""
+    ``tuned.toml`` (B) on the same logs, with the sweep's region and truth (issue 33). The page is rendered as
+    ``write_report`` renders it into ``tmp_path``, without drawing the plots (~3 s a page), which this section
+    does not show; the written page's commands are checked by
+    ``test_report_writes_every_plot_and_one_self_contained_page``."""
     import shlex
+
+    def page_of(summary) -> str:
+        return report.render_html(summary, [], tuned_toml=(tmp_path / "tuned.toml").read_text(encoding="utf-8"),
+                                  out_dir=tmp_path)
 
     summary = model_summary(tmp_path)
     summary["reproduce"] = ("zcut sweep /data/a.mcap -o out --config '/c/my cfg.toml' --bin-model /m/b.ply "
                             "--truth sensor --region valid")
     summary["region"], summary["truth"] = "valid", "sensor"
-    page = report.write_report(tmp_path, summary).read_text()
+    page = page_of(summary)
     cmd = html.unescape(page.split("paired verdict")[1].split("<pre>")[1].split("</pre>")[0])
     words = shlex.split(cmd)
     assert words[:2] == ["zcut", "compare"] and "/data/<scan & co>.mcap" in words
@@ -425,6 +433,6 @@ def test_the_report_gives_the_compare_command_of_its_config_against_tuned(tmp_pa
     assert words[words.index("--bin-model") + 1] == "/m/b.ply"
     assert words[words.index("--region") + 1] == "valid" and words[words.index("--truth") + 1] == "sensor"
     summary["reproduce"], summary["region"], summary["truth"] = "zcut sweep /data/a.mcap -o out", "zone", "paper, sensor"
-    words = shlex.split(html.unescape(report.write_report(tmp_path, summary).read_text()
+    words = shlex.split(html.unescape(page_of(summary)
                                       .split("paired verdict")[1].split("<pre>")[1].split("</pre>")[0]))
     assert words[words.index("--a") + 1] == "zcut" and "--region" not in words and "--truth" not in words
