@@ -642,6 +642,35 @@ def _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, 
     return -1
 
 
+@numba.njit(cache=True, inline="always")
+def _class_of(px, py, pz, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off, ijk, busy, box,  # type: ignore[no-untyped-def]  # numba kernel
+              delta, radius, planes, hint):  # pragma: no cover - numba
+    """``(k, hint)``: the class code (``_EASY``, ``_BIN`` or ``_OPEN``) of a valid pixel in the footprint at
+    (px, py, pz) (bin frame) as :func:`_classify` decides it, and the hint for the row's next pixel (the model point
+    that passed, or ``hint`` as it was). ``bin_first`` (the robust mode): a point near the model is bin even above
+    the rim's offset. The one decision of :func:`_classify_codes` and :func:`_classify_finish`."""
+    k = _OPEN
+    if bin_first:
+        j = -1
+        if test_bin:
+            j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes,
+                           hint)
+        if j >= 0:
+            k = _BIN
+            hint = j
+        elif -pz > easy_above:
+            k = _EASY
+    elif -pz > easy_above:
+        k = _EASY
+    elif test_bin:
+        j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius, planes,
+                       hint)
+        if j >= 0:
+            k = _BIN
+            hint = j
+    return k, hint
+
+
 @numba.njit(parallel=True, cache=True, nogil=True)
 def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,  # type: ignore[no-untyped-def]  # numba kernel
                     ijk, busy, box, delta, radius, planes, code):  # pragma: no cover - numba
@@ -657,25 +686,8 @@ def _classify_codes(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell, 
                 code[r, c] = _TABLE
                 continue
             px, py, pz = _to_bin(a, r, c, R, t)
-            k = _OPEN
-            if bin_first:
-                j = -1
-                if test_bin:
-                    j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta,
-                                   radius, planes, hint)
-                if j >= 0:
-                    k = _BIN
-                    hint = j
-                elif -pz > easy_above:
-                    k = _EASY
-            elif -pz > easy_above:
-                k = _EASY
-            elif test_bin:
-                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
-                               planes, hint)
-                if j >= 0:
-                    k = _BIN
-                    hint = j
+            k, hint = _class_of(px, py, pz, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,
+                                ijk, busy, box, delta, radius, planes, hint)
             code[r, c] = k
 
 
@@ -713,25 +725,8 @@ def _classify_finish(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell,
                 height[r, c] = -1000.0 * zf
                 continue
             px, py, pz = _to_bin(a, r, c, R, t)
-            k = _OPEN
-            if bin_first:
-                j = -1
-                if test_bin:
-                    j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta,
-                                   radius, planes, hint)
-                if j >= 0:
-                    k = _BIN
-                    hint = j
-                elif -pz > easy_above:
-                    k = _EASY
-            elif -pz > easy_above:
-                k = _EASY
-            elif test_bin:
-                j = _near_hint(px, py, pz, origin, cell, dims, start, pts, nrm, off, ijk, busy, box, delta, radius,
-                               planes, hint)
-                if j >= 0:
-                    k = _BIN
-                    hint = j
+            k, hint = _class_of(px, py, pz, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,
+                                ijk, busy, box, delta, radius, planes, hint)
             code[r, c] = k
             table[r, c] = False
             easy[r, c] = k == _EASY
