@@ -132,7 +132,7 @@ def pieces(log: Path, frames: int, repeats: int) -> None:
                 near = timed("reach: second query", rm._nearest_again, xyz, flat[keep], own_at[keep], index, T, q)
                 timed("percentile (reach)", rm._percentile_higher, near, p.residual_quantile)
                 timed("sigma_bin", rm.bin_sigma_m, res[keep])
-                timed("pixel angle (its steps' median)", rm._median_of, steps)
+                timed("pixel angle (median)", rm._median_of, steps)
                 times.setdefault("the pieces together", []).append(time.process_time() - t0)
                 timed("frame_tolerance (whole)", frame_tolerance, xyz, ring, index, T)
                 counts = (len(want), len(flat))
