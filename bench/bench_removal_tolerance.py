@@ -77,7 +77,7 @@ def measure(log: Path, frames: int, repeats: int, prev: Any) -> tuple[float, flo
 
 
 def _to_bin_frame(pts: np.ndarray, T: np.ndarray) -> np.ndarray:
-    return (pts - T[:3, 3]) @ T[:3, :3]  # zcut.removal._query's product
+    return pts @ T[:3, :3]  # zcut.removal._query's product (the gather took the translation off)
 
 
 def _tree_rows(tree: Any, p_bin: np.ndarray, d: np.ndarray, j: np.ndarray, unsure: np.ndarray, ub: float) -> None:
@@ -109,9 +109,9 @@ def pieces(log: Path, frames: int, repeats: int) -> None:
             for xyz, _, ring, T in located[1:]:
                 T = np.asarray(T, np.float64)
                 t0 = time.process_time()
-                flat, want, own_at, nb_at = timed("sample", rm._sample_ring, xyz, np.ascontiguousarray(ring),
-                                                  rm.MAX_RESIDUAL_PX)
-                pts, ok = timed("query: gather", rm._gather_finite, xyz, want)
+                flat, want, own_at, nb_at, steps = timed("sample", rm._sample_and_steps,
+                                                         xyz, np.ascontiguousarray(ring), rm.MAX_RESIDUAL_PX)
+                pts, ok = timed("query: gather", rm._gather_finite, xyz, want, np.ascontiguousarray(T[:3, 3]))
                 p_bin = timed("query: bin-frame product", _to_bin_frame, pts, T)
                 d, j, unsure = timed("query: grid", rm._nearest_grid, np.ascontiguousarray(p_bin), g.origin, g.cell,
                                      g.dims, g.start, g.points, g.empty_to, g.order, ub)
@@ -119,7 +119,8 @@ def pieces(log: Path, frames: int, repeats: int) -> None:
                 diff, nrm = timed("query: residual parts", rm._residual_parts, p_bin, j, index.model.points,
                                   index.model.normals)
                 e = timed("query: einsum", np.einsum, "ij,ij->i", diff, nrm)
-                q = rm._Queried(want, *timed("query: scatter", rm._scatter_query, ok, p_bin, d, j, e, True))
+                q = rm._Queried(want, *timed("query: scatter", rm._scatter_query, ok, p_bin, d, j, e, True),
+                                pts if len(pts) == len(want) else None)
                 res, nbr = timed("neighbours", rm._own_and_neighbours, q.residual_mm, own_at, nb_at)
                 around = timed("neighbours' medians", rm._around_median, nbr)
                 with np.errstate(invalid="ignore"):
@@ -131,7 +132,7 @@ def pieces(log: Path, frames: int, repeats: int) -> None:
                 near = timed("reach: second query", rm._nearest_again, xyz, flat[keep], own_at[keep], index, T, q)
                 timed("percentile (reach)", rm._percentile_higher, near, p.residual_quantile)
                 timed("sigma_bin", rm.bin_sigma_m, res[keep])
-                timed("pixel angle", rm.pixel_angle, xyz, flat)
+                timed("pixel angle (median)", rm._median_of, steps)
                 times.setdefault("the pieces together", []).append(time.process_time() - t0)
                 timed("frame_tolerance (whole)", frame_tolerance, xyz, ring, index, T)
                 counts = (len(want), len(flat))
