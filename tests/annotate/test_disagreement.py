@@ -9,6 +9,7 @@ import shutil
 import numpy as np
 import pytest
 from cli_helpers import run_cli
+from session_logs import synth_once
 
 from annotate.disagreement import FILE, ONLY_A, ONLY_B, load
 from annotate.payload import parse_bundle, prepare_frame
@@ -22,7 +23,8 @@ SIZE = "120x180"
 def data(tmp_path_factory):
     d = tmp_path_factory.mktemp("disagreement")
     log = d / "log.mcap"
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "3", "--seed", "5", "--size", SIZE]) == 0
+    # tests/replay/pipeline/test_replay_verdicts.py's log too: made once per session, copied here
+    shutil.copyfile(synth_once(tmp_path_factory, parts="rods", frames=3, seed=5, size=SIZE), log)
     other = d / "other.mcap"
     assert main(["synth", "-o", str(other), "--parts", "spheres", "--frames", "2", "--seed", "6", "--size", SIZE]) == 0
     (d / "rho.toml").write_text("[zcut]\nrho_thr = 0.035\n")

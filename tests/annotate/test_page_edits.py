@@ -40,6 +40,14 @@ def srv(nine, tmp_path):
     s.stop()
 
 
+@pytest.fixture(scope="module")
+def viewed(nine, tmp_path_factory):
+    """One server for the tests that save nothing (they move between frames, open and reopen the page)."""
+    s = ServerProcess(nine, tmp_path_factory.mktemp("viewed") / "labels.sqlite", annotator="erin")
+    yield s
+    s.stop()
+
+
 def _label(srv, log, index):
     with LabelStore(srv_db(srv)) as s:
         return s.label(s.frames(s.log_by_sha(file_sha256(log)))[index], annotator="erin")
@@ -49,8 +57,8 @@ def srv_db(srv):
     return srv.proc.args[srv.proc.args.index("--db") + 1]
 
 
-def test_navigation_keys_add_up(srv, browser):
-    page, errors, blocked = open_page(browser, srv.url)
+def test_navigation_keys_add_up(viewed, browser):
+    page, errors, blocked = open_page(browser, viewed.url)
     try:
         for _ in range(7):  # as fast as keys go: each press moves one frame further
             page.keyboard.press("ArrowRight")
@@ -165,7 +173,8 @@ def test_a_conflict_shows_both_versions_and_merges(srv, nine, browser):
         close_page(page)
 
 
-def test_the_token_leaves_the_address_bar_for_an_http_only_cookie(srv, browser):
+def test_the_token_leaves_the_address_bar_for_an_http_only_cookie(viewed, browser):
+    srv = viewed
     page, errors, blocked = open_page(browser, srv.url)
     try:
         assert page.url == f"{srv.base}/#0" and srv.token not in page.url

@@ -11,18 +11,16 @@ import time
 from pathlib import Path
 
 import pytest
+from session_logs import synth_once
 from subprocess_helpers import run_python
 
-from cli.main import main
 from replay.process import Interrupted, InterruptState, interrupted_by
 
 
 @pytest.fixture(scope="module")
 def log(tmp_path_factory):
-    p = tmp_path_factory.mktemp("sig_logs") / "log.mcap"
-    assert main(["synth", "-o", str(p), "--parts", "zinc_nuts", "--frames", "4", "--seed", "3",
-                 "--size", "480x640"]) == 0
-    return p
+    # the log of tests/replay/pipeline/test_full_disk.py too: made once per session
+    return synth_once(tmp_path_factory, parts="zinc_nuts", frames=4, seed=3, size="480x640")
 
 
 def _start(log: Path, out: Path) -> subprocess.Popen:

@@ -19,13 +19,14 @@ from replay.logs.reader import LogReader
 
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
-    d = tmp_path_factory.mktemp("cloudless")
-    log, lean, full = d / "s.mcap", d / "lean.mcap", d / "full.mcap"
+    from session_logs import replay_out_once, synth_once
+
     from cli.main import main
 
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "2", "--seed", "11",
-                 "--size", "240x384"]) == 0
-    assert main(["replay", str(log), "--out", str(lean)]) == 0
+    # the log and its lean results file are tests/replay/logs/test_packed_results.py's too: made once per session
+    log = synth_once(tmp_path_factory, parts="rods", frames=2, seed=11, size="240x384")
+    lean = replay_out_once(tmp_path_factory, log)
+    full = tmp_path_factory.mktemp("cloudless") / "full.mcap"
     assert main(["replay", str(log), "--out", str(full), "--out-cloud"]) == 0
     return log, lean, full
 

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from kernel_calls import counted_calls
 from log_helpers import decoded_in_full
 
 from replay.logs import layout
@@ -54,16 +55,7 @@ def _check(path: Path) -> list[Frame]:
 @pytest.fixture
 def colour_decodes(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """The names of the colour-unpacking kernels called (cloud_to_arrays calls them by module global)."""
-    calls: list[str] = []
-    for name in ("_unpack_words_rgb", "_unpack_xyz_rgb"):
-        kernel = getattr(rm, name)
-
-        def counted(*a, _k=kernel, _n=name):  # type: ignore[no-untyped-def]
-            calls.append(_n)
-            return _k(*a)
-
-        monkeypatch.setattr(rm, name, counted)
-    return calls
+    return counted_calls(monkeypatch, rm, ("_unpack_words_rgb", "_unpack_xyz_rgb"))
 
 
 def test_with_an_image_the_cloud_colours_are_not_decoded(synthetic, colour_decodes):

@@ -85,12 +85,12 @@ def _unpacked_copy(src, dst) -> None:
 @pytest.fixture(scope="module", params=[("rods", "11"), ("zinc_nuts", "5")])
 def files(request, tmp_path_factory):
     kind, seed = request.param
-    d = tmp_path_factory.mktemp(f"packed_{kind}")
-    log, res, old = d / "s.mcap", d / "r.mcap", d / "old.mcap"
-    from cli.main import main
+    from session_logs import replay_out_once, synth_once
 
-    assert main(["synth", "-o", str(log), "--parts", kind, "--frames", "2", "--seed", seed, "--size", "240x384"]) == 0
-    assert main(["replay", str(log), "--out", str(res)]) == 0
+    # the rods log and its results file are tests/replay/logs/test_cloudless_results.py's too: made once per session
+    log = synth_once(tmp_path_factory, parts=kind, frames=2, seed=int(seed), size="240x384")
+    res = replay_out_once(tmp_path_factory, log)
+    old = tmp_path_factory.mktemp(f"packed_{kind}") / "old.mcap"
     _unpacked_copy(res, old)
     return log, res, old
 

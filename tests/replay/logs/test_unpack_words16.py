@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from kernel_calls import counted_calls
 
 from replay.logs import ros2_msgs as rm
 
@@ -54,16 +55,7 @@ def _literal(cloud: rm.CloudMsg) -> np.ndarray:
 @pytest.fixture
 def kernels(monkeypatch: pytest.MonkeyPatch) -> list[str]:
     """The names of the x, y, z word kernels cloud_to_arrays calls (by module global)."""
-    calls: list[str] = []
-    for name in ("_unpack_words", "_unpack_words16"):
-        kernel = getattr(rm, name)
-
-        def counted(*a, _k=kernel, _n=name):  # type: ignore[no-untyped-def]
-            calls.append(_n)
-            return _k(*a)
-
-        monkeypatch.setattr(rm, name, counted)
-    return calls
+    return counted_calls(monkeypatch, rm, ("_unpack_words", "_unpack_words16"))
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 9), (7, 1), (5, 13), (120, 160), (480, 640)])

@@ -28,6 +28,23 @@ def log(tmp_path_factory):
                      size="320x200")
 
 
+@pytest.fixture(scope="module")
+def replayed(tmp_path_factory, log):
+    """``zcut replay LOG --methods zcut,explained --out r.mcap --rrd e.rrd --json`` once for the tests that read its
+    results file, its recording or its messages: (folder, exit status, stdout, stderr)."""
+    import contextlib
+    import io
+
+    from cli.main import main
+
+    d = tmp_path_factory.mktemp("explained_replay")
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        rc = main(["replay", str(log), "--methods", METHODS, "--out", str(d / "r.mcap"), "--rrd", str(d / "e.rrd"),
+                   "--json"])
+    return d, rc, out.getvalue(), err.getvalue()
+
+
 def _mask(results, topic: str) -> np.ndarray:
     """The one frame's mask on ``topic`` of a results MCAP (its records read with the mcap library)."""
     with open(results, "rb") as f:
@@ -40,17 +57,17 @@ def _replay(capsys, log, out, *extra) -> tuple[int, str, str]:
     return run_cli(capsys, "replay", log, "--methods", METHODS, "--out", out, "--json", *extra)
 
 
-def test_replay_writes_the_explained_mask_from_the_logs_part_model(capsys, tmp_path, log):
-    rc, out, err = _replay(capsys, log, tmp_path / "r.mcap")
+def test_replay_writes_the_explained_mask_from_the_logs_part_model(replayed):
+    d, rc, out, err = replayed
     assert rc == 0, err
-    mask = _mask(tmp_path / "r.mcap", layout.method_topic("explained"))
-    scored = _mask(tmp_path / "r.mcap", layout.ZONE)  # the zone and the points above the rim
+    mask = _mask(d / "r.mcap", layout.method_topic("explained"))
+    scored = _mask(d / "r.mcap", layout.ZONE)  # the zone and the points above the rim
     assert mask.sum() > 20 and not (mask & ~scored).any()
     assert "explained: the part model is the log's part_model.ply" in (out + err)
     assert "explained: no part model" not in (out + err)
 
 
-def test_part_model_option_gives_the_same_mask(capsys, tmp_path, log):
+def test_part_model_option_gives_the_same_mask(capsys, tmp_path, log, replayed):
     """The log's mesh written as an STL in metres and given with --part-model: the same outliers."""
     import open3d as o3d
 
@@ -61,10 +78,10 @@ def test_part_model_option_gives_the_same_mask(capsys, tmp_path, log):
     mesh.compute_triangle_normals()
     stl = tmp_path / "ball.stl"
     assert o3d.io.write_triangle_mesh(str(stl), mesh)
-    assert _replay(capsys, log, tmp_path / "a.mcap")[0] == 0
+    assert replayed[1] == 0  # the log's own part model: the module's replay
     rc, out, err = _replay(capsys, log, tmp_path / "b.mcap", "--part-model", stl, "--part-model-unit", "m")
     assert rc == 0, err
-    a = _mask(tmp_path / "a.mcap", layout.method_topic("explained"))
+    a = _mask(replayed[0] / "r.mcap", layout.method_topic("explained"))
     b = _mask(tmp_path / "b.mcap", layout.method_topic("explained"))
     assert (a ^ b).sum() <= max(2, 0.02 * a.sum())  # the STL stores float32 vertices
 
@@ -120,11 +137,11 @@ def test_batch_workers_read_the_same_part_model(capsys, tmp_path, log):
     assert tp and tp[0] > 0
 
 
-def test_the_recording_shows_the_fits_the_distances_and_the_unexplained(capsys, tmp_path, log):
+def test_the_recording_shows_the_fits_the_distances_and_the_unexplained(replayed):
     import rerun as rr
 
-    rrd = tmp_path / "e.rrd"
-    rc, out, err = run_cli(capsys, "replay", log, "--methods", METHODS, "--rrd", rrd)
+    d, rc, out, err = replayed
+    rrd = d / "e.rrd"
     assert rc == 0, err
     entities = {chunk.entity_path for chunk in rr.chunk.RrdReader(str(rrd)).stream()}
     for path in ("/image/explained", "/image/explained_distance", "/world/explained/fits",

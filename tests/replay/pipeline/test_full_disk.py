@@ -11,16 +11,31 @@ import time
 
 import pytest
 from disk_helpers import small_disk
+from session_logs import synth_once
 
 from cli.main import main
 
 
 @pytest.fixture(scope="module")
 def log(tmp_path_factory):
-    p = tmp_path_factory.mktemp("full_logs") / "log.mcap"
-    assert main(["synth", "-o", str(p), "--parts", "zinc_nuts", "--frames", "4", "--seed", "3",
-                 "--size", "480x640"]) == 0  # a 1.5 MB .rrd and a 17 MB results file
-    return p
+    # a 1.5 MB .rrd and a 17 MB results file; the log of tests/replay/test_signals.py too: made once per session
+    return synth_once(tmp_path_factory, parts="zinc_nuts", frames=4, seed=3, size="480x640")
+
+
+@pytest.fixture(scope="module")
+def empty(tmp_path_factory):
+    """An empty bin's log and its bin model made on a disk with room (what the full disk's run would have written)."""
+    d = tmp_path_factory.mktemp("full_empty")
+    assert main(["synth", "-o", str(d / "e.mcap"), "--empty", "--frames", "2", "--seed", "3", "--size", "240x320"]) == 0
+    assert main(["bin-model", str(d / "e.mcap"), "-o", str(d / "b.ply")]) == 0
+    return d / "e.mcap", d / "b.ply"
+
+
+@pytest.fixture(scope="module")
+def rods(tmp_path_factory):
+    log = tmp_path_factory.mktemp("full_rods") / "s.mcap"
+    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "3", "--seed", "5", "--size", "320x200"]) == 0
+    return log
 
 
 @pytest.mark.parametrize(("outputs", "size", "short"), [
@@ -60,13 +75,12 @@ def test_a_recording_is_checked_complete_before_it_takes_its_name(log, tmp_path,
 
 
 @pytest.mark.parametrize("size", ["64k", "1m"])
-def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size):
+def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, empty, size):
     """Open3D's PLY writer reports success on a full disk and leaves a truncated file: ``zcut
     bin-model`` checks the space before and the file after, and names the output."""
     from replay.pipeline.bin_model import _check_complete_ply
 
-    empty = tmp_path / "e.mcap"
-    assert main(["synth", "-o", str(empty), "--empty", "--frames", "2", "--seed", "3", "--size", "240x320"]) == 0
+    empty, ok = empty
     with small_disk(tmp_path / "disk", size) as disk:
         run = subprocess.run([sys.executable, "-m", "cli", "bin-model", str(empty), "-o", str(disk / "b.ply")],
                              capture_output=True, text=True, timeout=600)
@@ -75,8 +89,6 @@ def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size)
         assert len(errors) == 1 and "Traceback" not in run.stderr and "RPly" not in run.stderr, run.stderr
         assert "no space left on the device" in errors[0] and str(disk / "b.ply") in errors[0], errors
         assert sorted(p.name for p in disk.iterdir()) == []
-    ok = tmp_path / "b.ply"
-    assert main(["bin-model", str(empty), "-o", str(ok)]) == 0
     _check_complete_ply(ok)  # a complete file passes
     data = ok.read_bytes()
     cut = tmp_path / "cut.ply"
@@ -88,11 +100,10 @@ def test_bin_model_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size)
 @pytest.mark.parametrize(("size", "short"), [("64k", ("compare.rrd", "parts")),
                                              # which output meets the full disk first depends on their sizes
                                              ("400k", ("compare.rrd", "compare.json", "report.html", "disagreement.npz"))])
-def test_compare_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, size, short):
+def test_compare_on_a_full_disk_is_one_line_and_leaves_nothing(tmp_path, rods, size, short):
     """``zcut compare``'s recording goes through replay's checked .rrd file (a full disk met by Rerun's
     writer was a RuntimeError traceback)."""
-    log = tmp_path / "s.mcap"
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", "3", "--seed", "5", "--size", "320x200"]) == 0
+    log = rods
     with small_disk(tmp_path / "disk", size) as disk:
         run = subprocess.run([sys.executable, "-m", "cli", "compare", str(log), "--a", "zcut", "--b", "sor", "-o",
                               str(disk / "o")], capture_output=True, text=True, timeout=600)

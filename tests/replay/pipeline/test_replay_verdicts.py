@@ -4,6 +4,7 @@ real .rrd read back with rr.chunk.RrdReader, its TP / FP / FN per frame equal to
 from __future__ import annotations
 
 import json
+import shutil
 from collections import defaultdict
 
 import numpy as np
@@ -11,8 +12,7 @@ import pytest
 import rerun as rr
 from cli_helpers import run_cli
 from log_helpers import without_truth
-
-from cli.main import main
+from session_logs import synth_once
 
 SIZE = "120x180"
 FRAMES = 3
@@ -23,8 +23,8 @@ METHODS = ("zcut", "sor")
 def data(tmp_path_factory):
     d = tmp_path_factory.mktemp("verdicts")
     log = d / "log.mcap"
-    assert main(["synth", "-o", str(log), "--parts", "rods", "--frames", str(FRAMES), "--seed", "5",
-                 "--size", SIZE]) == 0
+    # tests/annotate/test_disagreement.py's log too: made once per session, copied here
+    shutil.copyfile(synth_once(tmp_path_factory, parts="rods", frames=FRAMES, seed=5, size=SIZE), log)
     without_truth(log, d / "notruth.mcap")
     return d
 

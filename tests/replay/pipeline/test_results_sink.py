@@ -15,9 +15,10 @@ from replay.pipeline.sinks import BackgroundSinks, ResultsSink
 
 @pytest.fixture(scope="module")
 def small_log(tmp_path_factory):
-    from cli_helpers import synth_log
+    from session_logs import synth_once
 
-    return synth_log(tmp_path_factory.mktemp("results") / "s.mcap", parts="rods", frames=2, seed=11, size="240x384")
+    # the log of tests/replay/logs/test_packed_results.py and test_cloudless_results.py too: made once per session
+    return synth_once(tmp_path_factory, parts="rods", frames=2, seed=11, size="240x384")
 
 
 def _messages(path):

@@ -54,8 +54,8 @@ def test_log_holds_the_frames_and_their_truth(tmp_path):
     frames = list(stream)
     assert stream.damage == ()
     assert len(frames) == 2
-    for i, f in enumerate(frames):
-        sf = synthesize_frame(kind="rods", seed=9, index=i, size=SIZE)
+    made = [synthesize_frame(kind="rods", seed=9, index=i, size=SIZE) for i in range(2)]
+    for i, (f, sf) in enumerate(zip(frames, made)):
         assert f.stamp_ns == stamp_ns(9, i) == sf.frame.stamp_ns
         assert f.frame_id == sf.frame.frame_id
         np.testing.assert_array_equal(f.xyz, sf.frame.xyz)  # NaN where NaN, bit-equal elsewhere
@@ -70,9 +70,8 @@ def test_log_holds_the_frames_and_their_truth(tmp_path):
     # read with the mcap library's own ROS 2 decoder: one image per cloud, the cloud's stamp
     kinds = _kind_images(path)
     assert sorted(kinds) == [stamp_ns(9, 0), stamp_ns(9, 1)]
-    for i in range(2):
-        np.testing.assert_array_equal(kinds[stamp_ns(9, i)], synthesize_frame(kind="rods", seed=9, index=i,
-                                                                               size=SIZE).outlier_kind)
+    for i, sf in enumerate(made):
+        np.testing.assert_array_equal(kinds[stamp_ns(9, i)], sf.outlier_kind)
     assert meta["outlier_kind_topic"] == layout.TRUTH_OUTLIER_KIND
     assert meta["generator_version"] == GENERATOR_VERSION and meta["quantize_mm"] == "0"
 
