@@ -652,10 +652,11 @@ def fitted_frames(log: Path) -> Iterator[tuple[Any, Any, Any, float, Any]]:
         yield frame, job, ff, cpu, session.config
 
 
-def _memo(fn: Any, keep: int = 4) -> Any:
+def _memo(fn: Any, keep: int = 16) -> Any:
     """``fn`` remembering its last ``keep`` results by the digests of its array arguments (one frame's fits, computed
     once for the rule as written and every sliver variant: they come before the pass and do not depend on it; the
-    pipeline's own ``explained`` computes them first). Thread-safe: the pipeline runs two frames at once."""
+    pipeline's own ``explained`` computes them first, for two frames at once and for the pieces on top's own fits too:
+    a few frames' worth are kept). Thread-safe."""
     import hashlib
     import threading
 
