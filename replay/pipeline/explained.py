@@ -102,7 +102,7 @@ JOIN_SLAB_MM = 5.0
 #: ... at most this many of those regions tried, the largest first, and per region every guess a few wide ICP
 #: iterations (:attr:`zcut.sliver_fits.SliverParams.coarse`; 0: all of them) and only the best few
 #: (:attr:`zcut.sliver_fits.SliverParams.refine`) on: the pass's CPU bound
-SLIVER_MAX_REGIONS = 24
+SLIVER_MAX_REGIONS = 12
 SLIVER_COARSE = 2
 SLIVER_REFINE = 8
 
