@@ -47,18 +47,28 @@ there on the next ones (:func:`fitted_frames`): one fitting pass for several sco
 ``--ring-below``, the scoring's own changes).
 ``--compare BEFORE.json,AFTER.json`` prints two ``--diagnose --json`` files (two trees, the same logs) as one
 table, before → after, and the largest cause of each log's wrong pixels in the after file.
+``--no-causes`` (``--diagnose`` only) scores each frame without the scene's true surfaces: the IoU, the truth held, the
+limit and the inputs, not the causes (the frames the causes are not read on: a held-out set).
+``--kinds F1,F2,…`` prints ``--diagnose --json`` files (and their ``.slivers.json``) per kind of frame (the part and the
+sensor, the seed: :func:`kinds_summary`): the median and the range over the frames of the IoU with the paper's truth
+and the sensor's, the truth held, the limit and the inputs, per variant, the paired changes against a variant
+(``--against NAME``), and, where the rows carry them, the wrong label pixels by class summed over the frames
+(docs/labelling.md, "Fifteenth round").
 
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap --seed-px N --json F
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --config OFF.toml --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --compare BEFORE.json,AFTER.json
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --slivers 150:12:2:8 [--no-causes] --json F
+    cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --kinds F1,F2 [--against slivers150x12x2x8]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -106,6 +116,8 @@ FITS_CACHE: Path | None = None
 #: fits from the same frame and job, the frame's fits and pieces on top computed once (:func:`sliver_variants`); the
 #: fits cache is then written with the pass off. None: the tree's defaults (docs/labelling.md, "Fourteenth round").
 SLIVERS: list[tuple[int, ...]] | None = None
+#: ``--no-causes`` (``--diagnose`` only): each frame scored without the scene's true surfaces (no cause split)
+NO_CAUSES = False
 
 
 def iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -587,20 +599,21 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     Returns the rows of the rule as written and, with :data:`SEED_PX`, those of the variant from the same fits (its
     seeds applied by :func:`seed_steps`; else no rows). Each label is saved in ``work`` (:func:`label_file`)."""
     rows, seeded = [], []
-    for frame, job, ff, cpu, config in fitted_frames(log):
-        rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
-        print(json.dumps(rows[-1], indent=1, default=float), flush=True)
-        if SLIVERS is not None:
-            for name, vff, vcpu, pass_cpu in sliver_variants(log, frame, job, SLIVERS):
-                row = diagnose_frame(log, frame, job, vff, vcpu, work=work, variant=name)
-                row["cpu_slivers"] = round(pass_cpu, 3)
-                seeded.append(row)
-                print(json.dumps(row, indent=1, default=float), flush=True)
-        if SEED_PX is not None:
-            valid, xyz, heights = frame_arrays(frame, job)
-            *_, last = seed_steps(ff, xyz, heights, valid, config, SEED_PX)
-            seeded.append(diagnose_frame(log, frame, job, last.ff, cpu, work=work, seeds=last))
-            print(json.dumps(seeded[-1], indent=1, default=float), flush=True)
+    with shared_fits() if SLIVERS is not None else contextlib.nullcontext():
+        for frame, job, ff, cpu, config in fitted_frames(log):
+            rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
+            print(json.dumps(rows[-1], indent=1, default=float), flush=True)
+            if SLIVERS is not None:
+                for name, vff, vcpu, pass_cpu in sliver_variants(log, frame, job, SLIVERS):
+                    row = diagnose_frame(log, frame, job, vff, vcpu, work=work, variant=name)
+                    row["cpu_slivers"] = round(pass_cpu, 3)
+                    seeded.append(row)
+                    print(json.dumps(row, indent=1, default=float), flush=True)
+            if SEED_PX is not None:
+                valid, xyz, heights = frame_arrays(frame, job)
+                *_, last = seed_steps(ff, xyz, heights, valid, config, SEED_PX)
+                seeded.append(diagnose_frame(log, frame, job, last.ff, cpu, work=work, seeds=last))
+                print(json.dumps(seeded[-1], indent=1, default=float), flush=True)
     return rows, seeded
 
 
@@ -639,12 +652,16 @@ def fitted_frames(log: Path) -> Iterator[tuple[Any, Any, Any, float, Any]]:
         yield frame, job, ff, cpu, session.config
 
 
-def _memo(fn: Any) -> Any:
-    """``fn`` remembering its last results by the digests of its array arguments (one frame's fits, computed once for
-    every sliver variant: they come before the pass and do not depend on it)."""
+def _memo(fn: Any, keep: int = 16) -> Any:
+    """``fn`` remembering its last ``keep`` results by the digests of its array arguments (one frame's fits, computed
+    once for the rule as written and every sliver variant: they come before the pass and do not depend on it; the
+    pipeline's own ``explained`` computes them first, for two frames at once and for the pieces on top's own fits too:
+    a few frames' worth are kept). Thread-safe."""
     import hashlib
+    import threading
 
     memo: dict[tuple[Any, ...], Any] = {}
+    lock = threading.Lock()
 
     def key(a: Any) -> Any:
         if isinstance(a, np.ndarray):
@@ -657,28 +674,51 @@ def _memo(fn: Any) -> Any:
 
     def wrapped(*args: Any, **kw: Any) -> Any:
         k = (tuple(key(a) for a in args), tuple((n, key(v)) for n, v in sorted(kw.items())))
-        if k not in memo:
-            memo.clear()
-            memo[k] = fn(*args, **kw)
-        return memo[k]
+        with lock:
+            if k in memo:
+                return memo[k]
+        got = fn(*args, **kw)
+        with lock:
+            memo[k] = got
+            while len(memo) > keep:
+                memo.pop(next(iter(memo)))
+        return got
 
     return wrapped
+
+
+class shared_fits:
+    """While open, the fits (:func:`zcut.fits.fit_prepared`) and the pieces on top (:func:`zcut.top_pieces.top_pieces`)
+    are remembered by their inputs (:func:`_memo`): the same inputs, the same fits, computed once a frame for the
+    pipeline's ``explained``, the rule as written and every ``--slivers`` variant."""
+
+    def __enter__(self) -> shared_fits:
+        import zcut.fits
+        import zcut.top_pieces
+
+        self.saved = (zcut.fits.fit_prepared, zcut.top_pieces.top_pieces)
+        zcut.fits.fit_prepared = _memo(zcut.fits.fit_prepared)  # type: ignore[assignment]
+        zcut.top_pieces.top_pieces = _memo(zcut.top_pieces.top_pieces)  # type: ignore[assignment]
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        import zcut.fits
+        import zcut.top_pieces
+
+        zcut.fits.fit_prepared, zcut.top_pieces.top_pieces = self.saved  # type: ignore[assignment]
 
 
 def sliver_variants(log: Path, frame: Any, job: Any,
                     variants: Sequence[tuple[int, ...]]) -> Iterator[tuple[str, Any, float, float]]:
     """(name, the page's fits, their CPU-s, the sliver pass's CPU-s) of ``frame`` for each variant (:data:`SLIVERS`):
-    :func:`annotate.fits.fit_frame` with the pass's constants set (N, M, C, R), the fits and the pieces
-    on top computed once for all (remembered by their inputs' digests: the same inputs, the same fits)."""
+    :func:`annotate.fits.fit_frame` with the pass's constants set (N, M, C, R), under :class:`shared_fits` (the
+    caller's): the fits and the pieces on top computed once for all."""
     import replay.pipeline.explained as rex
-    import zcut.fits
-    import zcut.top_pieces
     from annotate.fits import fit_frame
 
     session = pipeline_options().open_session(log)
     bin_model = session.prepared.model if session.prepared is not None else None
-    saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, zcut.fits.fit_prepared,
-             zcut.top_pieces.top_pieces, rex._with_slivers)
+    saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex._with_slivers)
     spent = [0.0]
     inner = rex._with_slivers
 
@@ -689,8 +729,6 @@ def sliver_variants(log: Path, frame: Any, job: Any,
         finally:
             spent[0] += time.process_time() - t
 
-    zcut.fits.fit_prepared = _memo(zcut.fits.fit_prepared)  # type: ignore[assignment]
-    zcut.top_pieces.top_pieces = _memo(zcut.top_pieces.top_pieces)  # type: ignore[assignment]
     rex._with_slivers = timed  # type: ignore[assignment]
     try:
         for v in variants:
@@ -701,8 +739,7 @@ def sliver_variants(log: Path, frame: Any, job: Any,
             ff = fit_frame(frame, job, session.config, bin_model)
             yield "slivers" + "x".join(map(str, v)), ff, time.process_time() - t, spent[0]
     finally:
-        (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, zcut.fits.fit_prepared,
-         zcut.top_pieces.top_pieces, rex._with_slivers) = saved
+        (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex._with_slivers) = saved
 
 
 def pipeline_options() -> Any:
@@ -733,6 +770,44 @@ def label_file(work: Path, log: Path, frame: int, variant: str, how: str) -> Pat
     return work / f"{log.stem}_f{frame}_{variant}_{how}.npy"
 
 
+def label_scores(label: np.ndarray, ids: np.ndarray, truth: np.ndarray, served: np.ndarray,
+                 sensor: np.ndarray | None) -> dict[str, Any]:
+    """The scores of a label (``label``, from the proposals ``ids``: 0 none) against the paper's truth ``truth`` and
+    the sensor's ``sensor`` (None: not scored), both on the ``served`` pixels: IoU, the truth the proposals hold, the
+    per-proposal limit (each proposal decided by the majority of the paper's truth), the label's and the truth's
+    pixels. Any of (H, W)."""
+    P = np.asarray(truth, bool)
+    n = int(ids.max()) + 1 if ids.size else 1
+    sz = np.bincount(ids.ravel(), weights=served.ravel(), minlength=n)
+    tp = np.bincount(ids.ravel(), weights=P.ravel(), minlength=n)
+    majority = (sz > 0) & (tp >= 0.5 * sz)
+    majority[0] = False
+    return {"iou_sensor": None if sensor is None else iou(label, sensor & served),
+            "limit": iou(majority[ids] & served, P), "held": float((P & (ids > 0)).sum() / max(int(P.sum()), 1)),
+            "truth": int(P.sum()), "label": int(label.sum()), "label_truth": int((label & P).sum()),
+            "iou": iou(label, P), "truth in rejected proposals": int((P & (ids > 0) & ~label).sum()),
+            "missed": int((P & (ids == 0)).sum())}
+
+
+_KIND_MEMO: dict[str, dict[str, Any]] = {}
+
+
+def log_kind(log: Path) -> dict[str, Any]:
+    """``kind`` (the part and the sensor: ``zinc_nuts hand-made``, ``zinc_nuts ray-traced``) and ``seed`` of a
+    synthetic log, from its ``zcut.synth`` record; ``kind`` the log's name and ``seed`` None for another log."""
+    if str(log) not in _KIND_MEMO:
+        from replay.logs import layout
+        from replay.logs.reader import LogReader
+
+        meta = LogReader(log).metadata.get(layout.SYNTH_METADATA)
+        if meta is None:
+            _KIND_MEMO[str(log)] = {"kind": log.stem, "seed": None}
+        else:
+            sensor = "ray-traced" if meta.get("sensor") == "raytraced" else "hand-made"
+            _KIND_MEMO[str(log)] = {"kind": f"{meta['part_kind']} {sensor}", "seed": int(meta["seed"])}
+    return _KIND_MEMO[str(log)]
+
+
 #: the last frame's true surfaces and their nearest-surface image (:func:`diagnose_frame`), by (log, frame index)
 _TRUTH_MEMO: dict[tuple[str, int], Any] = {}
 
@@ -761,6 +836,13 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type
         label &= served
         # ---- the truth, read only from here on
         truth = frame.masks[layout.TRUTH_OFF_SURFACE] & served
+        if NO_CAUSES:
+            return {"log": log.name, "frame": frame.index, "variant": variant, **log_kind(log),
+                    "cpu_fits": round(cpu, 1), **how, "config": None if CONFIG is None else str(CONFIG),
+                    "served": int(served.sum()), "fits": len(ff.fits), **label_scores(label, ids, truth, served,
+                                                                                       frame.masks.get(layout.TRUTH_OUTLIERS)),
+                    "truth outside the served zone": int((frame.masks[layout.TRUTH_OFF_SURFACE] & valid
+                                                          & ~served).sum())}
         key = (str(log), frame.index)
         if key not in _TRUTH_MEMO:  # the variants of one frame are scored against the same truth: rebuilt once
             _TRUTH_MEMO.clear()
@@ -815,7 +897,8 @@ def diagnose_frame(log: Path, frame, job, ff, cpu: float, *, work: Path,  # type
         tp = np.bincount(ids.ravel(), weights=P.ravel(), minlength=int(ids.max()) + 1)
         majority = (sz > 0) & (tp >= 0.5 * sz)
         majority[0] = False
-        row = {"log": log.name, "frame": frame.index, "variant": variant, "cpu_fits": round(cpu, 1), **how,
+        row = {"log": log.name, "frame": frame.index, "variant": variant, **log_kind(log), "cpu_fits": round(cpu, 1),
+               **how,
                "config": None if CONFIG is None else str(CONFIG), "served": int(served.sum()),
                "iou_sensor": None if sensor is None else iou(label, sensor & served),
                "limit": iou(majority[ids] & served, P), "held": float((P & (ids > 0)).sum() / max(int(P.sum()), 1)),
@@ -937,6 +1020,115 @@ def compare(before: list[dict], after: list[dict]) -> list[str]:
     return [*out, "", "largest cause (after):", *(f"  {v}" for v in largest)]
 
 
+#: The classes of a label's wrong pixels (:func:`kinds_summary`), each a row key of :func:`diagnose_frame` and its
+#: name: the excess (label pixels not the paper's truth; "other" the rest of ``non_truth``) and the missed truth (the
+#: served truth not in the label: the rule rejected its proposal, or no proposal holds it, :data:`MISSED`).
+EXCESS = {"non: unfitted instance": "excess: on an instance no fit took",
+          **{k: f"excess: {v}" for k, v in list(CAUSES.items())[1:]},
+          "non: bin": "excess: bin", "non: table": "excess: table"}
+MISSED_CLASSES = {"truth in rejected proposals": "missed: in a proposal the rule rejected",
+                  "missed: displaced patch": "missed: a fit on a displaced patch",
+                  "missed: Err above": "missed: a fit's Err above the truth's",
+                  "missed: misposed": "missed: a fit misposed",
+                  "missed: other instance": "missed: a fit of another instance",
+                  "missed: bin or table": "missed: bin or table",
+                  "missed: other": "missed: in no proposal"}
+
+
+def _med(v: Sequence[float]) -> str:
+    """median [min–max] of ``v`` (3 decimals; None values left out; "-" when none is left)."""
+    x = [float(a) for a in v if a is not None]
+    if not x:
+        return "-"
+    return f"{float(np.median(x)):.3f} [{min(x):.3f}–{max(x):.3f}]"
+
+
+def _ints(v: Sequence[float]) -> str:
+    x = [int(a) for a in v]
+    return f"{int(np.median(x)):,} [{min(x):,}–{max(x):,}]" if x else "-"
+
+
+def kinds_summary(rows: Sequence[dict], *, against: str | None = None) -> list[str]:
+    """Markdown lines: ``--diagnose`` rows (:func:`diagnose_frame`; the rule as written and its variants) per kind of
+    frame and seed (:func:`log_kind`) — per variant the median and the range over the frames of the IoU with the
+    paper's truth and with the sensor's, the truth held, the per-proposal limit and the inputs; the changes of each
+    variant against ``against`` (default: the first variant met), paired by log and frame; and, where the rows carry
+    the causes (not ``--no-causes``), the wrong label pixels of ``against``'s rows by class (:data:`EXCESS`,
+    :data:`MISSED_CLASSES`), summed over the frames, with the truth outside the served zone beside them."""
+    variants = list(dict.fromkeys(r["variant"] for r in rows))
+    if not variants:
+        return ["(no rows)"]
+    ref = against if against is not None else variants[0]
+    if ref not in variants:
+        raise SystemExit(f"error: --against {ref!r}: no such variant among {', '.join(variants)}")
+    groups = list(dict.fromkeys((r["kind"], r["seed"]) for r in rows))
+    out: list[str] = []
+    for v in variants:
+        out += [f"variant {v}:", "| kind | seed | frames | IoU paper | IoU sensor | truth held | limit | inputs | "
+                "label px | truth px |", "|---|---|---|---|---|---|---|---|---|---|"]
+        for kind, seed in groups:
+            g = [r for r in rows if r["variant"] == v and (r["kind"], r["seed"]) == (kind, seed)]
+            if g:
+                out.append(f"| {kind} | {seed} | {len(g)} | {_med([r['iou'] for r in g])} | "
+                           f"{_med([r['iou_sensor'] for r in g])} | {_med([r['held'] for r in g])} | "
+                           f"{_med([r['limit'] for r in g])} | {_ints([r['inputs'] for r in g])} | "
+                           f"{_ints([r['label'] for r in g])} | {_ints([r['truth'] for r in g])} |")
+        out.append("")
+    base = {(r["log"], r["frame"]): r for r in rows if r["variant"] == ref}
+    for v in variants:
+        if v == ref:
+            continue
+        out += [f"{v} against {ref} (paired by frame; IoU: the medians, then the median and range of the changes):",
+                "| kind | seed | frames | median IoU | ΔIoU | Δheld | Δ CPU-s of the method | Δ CPU-s of the pass |",
+                "|---|---|---|---|---|---|---|---|"]
+        for kind, seed in groups:
+            pairs = [(base[(r["log"], r["frame"])], r) for r in rows
+                     if r["variant"] == v and (r["kind"], r["seed"]) == (kind, seed) and (r["log"], r["frame"]) in base]
+            if not pairs:
+                continue
+            d = {k: [b[k] - a[k] for a, b in pairs if a.get(k) is not None and b.get(k) is not None]
+                 for k in ("iou", "held", "cpu_fits", "cpu_slivers")}
+            out.append(f"| {kind} | {seed} | {len(pairs)} | {np.median([a['iou'] for a, _ in pairs]):.3f} → "
+                       f"{np.median([b['iou'] for _, b in pairs]):.3f} | "
+                       + " | ".join(_med(d[k]) for k in ("iou", "held", "cpu_fits", "cpu_slivers")) + " |")
+        out.append("")
+    caused = [r for r in rows if r["variant"] == ref and "non_truth" in r]
+    if caused:
+        cols = {**EXCESS, "excess: other": "excess: other", **MISSED_CLASSES}
+        out += [f"the wrong label pixels of {ref} by class, summed over the frames (px, share of the wrong pixels):",
+                "| kind | seed | frames | wrong px (excess + missed) | " + " | ".join(cols.values())
+                + " | truth outside the served zone |", "|---" * (len(cols) + 5) + "|"]
+        for kind, seed in groups:
+            g = [r for r in caused if (r["kind"], r["seed"]) == (kind, seed)]
+            if not g:
+                continue
+            tot = {k: sum(int(r.get(k, 0)) for r in g) for k in (*EXCESS, *MISSED_CLASSES, "non_truth", "truth",
+                                                                   "label_truth", "truth outside the served zone")}
+            tot["excess: other"] = tot["non_truth"] - sum(tot[k] for k in EXCESS)
+            wrong = tot["non_truth"] + tot["truth"] - tot["label_truth"]
+            out.append(f"| {kind} | {seed} | {len(g)} | {tot['non_truth']:,} + {tot['truth'] - tot['label_truth']:,} | "
+                       + " | ".join(f"{tot[k]:,} ({tot[k] / max(wrong, 1):.0%})" for k in cols)
+                       + f" | {tot['truth outside the served zone']:,} |")
+    return out
+
+
+def kinds_rows(files: Sequence[Path]) -> list[dict]:
+    """The rows of ``--diagnose --json`` files, each with its ``.slivers.json`` where there is one."""
+    rows: list[dict] = []
+    for f in files:
+        if not f.is_file():
+            raise SystemExit(f"error: --kinds: {f}: no such file")
+        rows += json.loads(f.read_text())
+        more = f.with_suffix(".slivers.json")
+        if more.is_file():
+            rows += json.loads(more.read_text())
+    for r in rows:
+        if "kind" not in r:
+            raise SystemExit(f"error: --kinds: {r.get('log')} frame {r.get('frame')}: a row without its kind "
+                             "(written before --kinds existed)")
+    return rows
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--logs", default="", help="comma-separated synthetic logs (zcut synth)")
@@ -971,14 +1163,29 @@ def main() -> int:
                     "(and C coarse ICP iterations for every guess, R guesses refined; default: all) (N = 0: off), "
                     "from the same frames; rows in JSON.slivers.json (docs/labelling.md, 'Fourteenth "
                     "round')")
+    ap.add_argument("--no-causes", action="store_true",
+                    help="with --diagnose: score without the scene's true surfaces (no cause split; a held-out set)")
+    ap.add_argument("--kinds", default="", metavar="F1,F2,…",
+                    help="--diagnose --json files (and their .slivers.json): per kind of frame, the median and range "
+                    "of the scores, the changes against a variant, the wrong pixels by class")
+    ap.add_argument("--against", default=None, metavar="VARIANT",
+                    help="with --kinds: the variant the others are compared with (default: the first; e.g. "
+                    "slivers150x12x2x8, the tree's method)")
     args = ap.parse_args()
+    if args.kinds:
+        print("\n".join(kinds_summary(kinds_rows([Path(v) for v in args.kinds.split(",") if v]),
+                                       against=args.against)))
+        return 0
     if args.compare:
         files = [Path(v) for v in args.compare.split(",")]
         if len(files) != 2:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, FITS_CACHE, SLIVERS
+    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, FITS_CACHE, SLIVERS, NO_CAUSES
+    if args.no_causes and not args.diagnose:
+        raise SystemExit("error: --no-causes is a --diagnose option")
+    NO_CAUSES = args.no_causes
     if args.slivers:
         if not args.diagnose or args.seed_px is not None:
             raise SystemExit("error: --slivers is a --diagnose option, not with --seed-px")
