@@ -41,6 +41,7 @@ from replay.logs.frame import Frame
 from replay.outputs import AtomicOutput, OutputError, config_path_for, folder_gone, naming
 from replay.pipeline.config import PipelineConfig, Resolved, to_toml
 from replay.pipeline.stages import FrameResult
+from replay.process import interrupts_deferred
 from zcut.bin_model import BinModel
 
 if TYPE_CHECKING:
@@ -210,24 +211,41 @@ class RrdFile:
         from replay.pipeline import viz
 
         error: list[BaseException] = []
+        # when the save is over: an Event, not the thread's join, which an exception raised inside it (a
+        # signal's) leaves believing the thread has ended (CPython 3.11's _wait_for_tstate_lock)
+        opened = threading.Event()
 
         def target() -> None:
             try:
                 rec.save(str(self.temp), default_blueprint=blueprint)
             except BaseException as e:  # noqa: BLE001 - handed to the caller
                 error.append(e)
+            finally:
+                opened.set()
 
         t = threading.Thread(target=target, name="zcut-rrd-open", daemon=True)
         t0 = time.monotonic()
         t.start()
-        while t.is_alive():
-            t.join(0.1)
-            waited = time.monotonic() - t0
-            if t.is_alive() and ((waited > RRD_OPEN_FULL_S and _disk_full(self.temp)) or waited > RRD_CLOSE_TIMEOUT_S):
-                viz.abandon(rec)
-                raise self._failure("its file writer did not start: "
-                                    + ("the disk is full" if _disk_full(self.temp) else
-                                       f"waited {RRD_CLOSE_TIMEOUT_S:g} s"))
+        try:
+            while not opened.wait(0.1):
+                waited = time.monotonic() - t0
+                if (waited > RRD_OPEN_FULL_S and _disk_full(self.temp)) or waited > RRD_CLOSE_TIMEOUT_S:
+                    viz.abandon(rec)
+                    raise self._failure("its file writer did not start: "
+                                        + ("the disk is full" if _disk_full(self.temp) else
+                                           f"waited {RRD_CLOSE_TIMEOUT_S:g} s"))
+        except OutputError:
+            raise
+        except BaseException:
+            # an interruption while Rerun's save runs: Rerun creates the file at :attr:`temp` itself
+            # (truncating ours), so a temporary removed now could be made again after the removal and
+            # left behind (seen: SIGTERM at a replay's first note). The save is let finish (bounded: a
+            # full disk can hold it for ever; then the recording is given up) before the caller's
+            # clean-up removes the file.
+            with interrupts_deferred():
+                if not opened.wait(RRD_OPEN_FULL_S):
+                    viz.abandon(rec)
+            raise
         if error:
             if isinstance(error[0], RuntimeError):  # Rerun's file sink could not create the file
                 raise self.opening_failure(error[0]) from None
