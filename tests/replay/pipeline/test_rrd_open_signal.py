@@ -2,7 +2,7 @@
 
 Rerun creates the file at the temporary's path itself; removed while its ``save`` still ran, the
 temporary was made again after the clean-up (h/trim4 saw a ``.o.XXXXXXXX.partial.rrd`` left by a
-replay given SIGTERM at its first note, once in ~20 runs under load). Here Rerun's real ``save`` is
+replay given SIGTERM at its first note, once, under load). Here Rerun's real ``save`` is
 reached 0.4 s late, so the signal lands inside that window every time.
 """
 
