@@ -204,16 +204,6 @@ def _footprint_cases(rng: np.random.Generator):
         yield r, xyz
 
 
-@pytest.fixture(params=["default", "one"])
-def opencv_threads(request):
-    """OpenCV on its default threads, then on one (a one-core machine: its precise transform is IPP's)."""
-    n = cv2.getNumThreads()
-    if request.param == "one":
-        cv2.setNumThreads(1)
-    yield request.param
-    cv2.setNumThreads(n)
-
-
 def test_the_bounded_distance_transform_on_random_footprints(opencv_threads):
     rng = np.random.default_rng({"default": 3, "one": 7}[opencv_threads])
     n = 0

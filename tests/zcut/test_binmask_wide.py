@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
-import pytest
 
 from zcut.binmask import (
     _EXACT_MAX_W,
@@ -20,15 +19,6 @@ from zcut.binmask import (
 )
 
 W = 1448
-
-
-@pytest.fixture(params=["default", "one"])
-def opencv_threads(request):
-    n = cv2.getNumThreads()
-    if request.param == "one":
-        cv2.setNumThreads(1)
-    yield request.param
-    cv2.setNumThreads(n)
 
 
 def _wide_footprints(rng: np.random.Generator):

@@ -22,10 +22,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from removal_inputs import located_frames
 
-from replay.pipeline import stages
-from replay.pipeline.bin_model import bin_model_for
-from replay.pipeline.session import ReplaySession
 from replay.synth.log import write_synthetic_log
 from replay.synth.raytrace import write_raytraced_log
 from zcut.removal import (
@@ -48,15 +46,9 @@ FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz", "r
 
 
 def _inputs(path):
-    """(model, params, [(xyz, footprint, ring, T)]) of every frame of a log, located as the replay does."""
-    s = ReplaySession.open(path, choose_bin_model=lambda reader: bin_model_for(reader, None))
-    out = []
-    for frame in s.reader.frames():
-        loc = stages.locate_bin(frame, s.config, bin_model=s.prepared, seed=s.seed)
-        assert loc.registration is not None and loc.registration.converged
-        out.append((frame.xyz, loc.bin_mask.mask, loc.ring, loc.registration.T_cam_bin))
-    assert s.prepared is not None
-    return s.prepared.model, s.config.removal, out
+    """(model, removal params, [(xyz, footprint, ring, T)]) of every frame of a log, located as the replay does."""
+    model, config, frames = located_frames(path)
+    return model, config.removal, frames
 
 
 @pytest.fixture(scope="module")
