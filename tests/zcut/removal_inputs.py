@@ -30,3 +30,9 @@ def located_frames(path: Path) -> tuple[Any, Any, list[Located]]:
         out.append((frame.xyz, loc.bin_mask.mask, loc.ring, loc.registration.T_cam_bin))
     assert s.prepared is not None
     return s.prepared.model, s.config, out
+
+
+def located_removal(path: Path) -> tuple[Any, Any, list[Located]]:
+    """:func:`located_frames` with the removal's parameters (``config.removal``) in place of the whole config."""
+    model, config, frames = located_frames(path)
+    return model, config.removal, frames

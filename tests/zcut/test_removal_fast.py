@@ -12,7 +12,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from removal_inputs import located_frames
+from removal_inputs import located_removal as _inputs
 
 from replay.synth.log import write_synthetic_log
 from replay.synth.raytrace import write_raytraced_log
@@ -29,12 +29,6 @@ from zcut.removal import (
 SIZE = (150, 200)
 FIELDS = ("table", "easy_outliers", "bin_points", "zone", "height_mm", "xyz", "rim_m", "floor_m", "tolerance_mm",
           "residual_mm", "radius_mm")
-
-
-def _inputs(path):
-    """(model, params, [(xyz, footprint, ring, T)]) of every frame of a log, located as the replay does."""
-    model, config, frames = located_frames(path)
-    return model, config.removal, frames
 
 
 @pytest.fixture(scope="module")
