@@ -21,10 +21,7 @@ atexit.register(shutil.rmtree, _CACHE, True)
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
-
-REAL_DATA = Path(__file__).resolve().parents[2] / "shared" / "data" / "real"
-if not REAL_DATA.is_dir():  # a checkout elsewhere may point at the data explicitly
-    REAL_DATA = Path(os.environ.get("ZCUT_REAL_DATA", REAL_DATA))
+from real_data_path import REAL_DATA  # noqa: E402
 
 
 @pytest.fixture

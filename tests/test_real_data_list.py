@@ -35,3 +35,12 @@ def test_the_real_data_folder_matches_the_list(real_data):
         assert (len(data), hashlib.sha256(data).hexdigest()) == (size, sha), name
     for lic in ("LICENSE-pcl-data.txt", "LICENSE-pcl.txt", "LICENSE-pointcloudset.txt"):
         assert (real_data / lic).is_file() and lic in DOC.read_text()
+
+
+def test_no_test_imports_a_conftest_by_name():
+    """``import conftest`` means whichever conftest.py pytest loaded last (tests/zcut has its own): CI's run of
+    stop 56 failed on it. The real data's folder is named in tests/real_data_path.py; fixtures come as fixtures."""
+    tests = Path(__file__).parent
+    pattern = re.compile(r"^\s*(import conftest\b|from conftest import)", re.MULTILINE)
+    found = [str(p.relative_to(tests)) for p in sorted(tests.rglob("*.py")) if pattern.search(p.read_text("utf-8"))]
+    assert found == []

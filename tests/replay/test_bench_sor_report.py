@@ -49,10 +49,10 @@ def test_a_minimum_over_synthetic_classes_is_not_called_the_smallest(bench):
 
 
 def test_this_checkout_finds_the_real_clouds_where_the_tests_do(bench):
-    import conftest
+    from real_data_path import REAL_DATA
 
-    if not conftest.REAL_DATA.is_dir():
+    if not REAL_DATA.is_dir():
         pytest.skip("no real data on this machine")
     folder, why = bench.real_data_folder()
-    assert why is None and folder.resolve() == conftest.REAL_DATA.resolve()
+    assert why is None and folder.resolve() == REAL_DATA.resolve()
     assert any(bench.is_real(c) for c in bench.cloud_classes(0))

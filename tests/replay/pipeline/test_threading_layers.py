@@ -164,10 +164,10 @@ def replays(logs: dict[str, Path]) -> dict[tuple[tuple[str, int, int | None], st
     """(run, kind of log) -> its replay's digests: the oracle and every run of :data:`RUNS`, one subprocess per
     run for all the logs it is checked on (the real Kinect log first, when the real data is here:
     ``test_a_real_kinect_log`` asks for it, and skips or fails without it as every real-data test does)."""
-    import conftest
+    from real_data_path import REAL_DATA
 
     paths = dict(logs)
-    real = conftest.REAL_DATA / "mosd_clutter_kinect_ros2.mcap"
+    real = REAL_DATA / "mosd_clutter_kinect_ros2.mcap"
     if real.is_file():
         paths["real"] = real
     kinds = ["real", "zinc_nuts", "spheres", "holes"]  # the real log first: no parallel kernel runs before it
