@@ -12,8 +12,7 @@ Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N] [
 run (a child process with OLD_TREE first on its path) and prints the ratio old / new, and whether
 its masks are identical. ``--alternate`` (with ``--against``) times both trees in this one process
 instead, calls alternating (a child process on a loaded machine reads slower than the same code
-here), and skips the reference and the passes; it prints each tree's minor page faults a
-``zcut_outliers`` call too (medians; the trees share one heap there).
+here), and skips the reference and the passes.
 
 Frames, heights in mm (larger = higher), seeded; nominal parameters step 0.2 mm, max_depth 30 mm,
 max_area = 0.07 * a_max (a_max = 3000 px):
@@ -180,7 +179,6 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
     k_eff, top = _levels(lo, hi, step, K)
     Hz, Wz = z.shape
     thr = hi - top * step  # as zcut_outliers: the window of the pixels in the cuts
-    raster = not lo < thr  # every pixel in the cuts: pix not listed, the kept pixels in gcnt's slots (as pruned_outliers)
     window, bound = ((0, 0, Hz, Wz), Hz * Wz) if not lo < thr else (_window(seg, thr, Wz)[:4], Hz * Wz)
     st, gl, pix, gpar, gcnt, gls = _scratch((window[2] + 2) * (window[3] + 2), bound)
     # as pruned_outliers: the labels in pix's order when at most half the frame may be in the cuts
@@ -194,7 +192,7 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
         # as zcut_outliers: the 8-connected gentle components (the z-cut's connectivity)
         args = (z, seg, lo, hi, step, np.int64(k_eff + 2), np.int64(top))
         rest = (max_area, np.int64(max(PRUNE_CHECK, PRUNE_CHECK_ROWS * Wz)), st, pix, gl, gpar, gcnt)
-        return (*gentle_levels(*args, True, *rest, 0.5, *window, *((None, True) if raster else labels)), 8)
+        return (*gentle_levels(*args, True, *rest, 0.5, *window, *labels), 8)
 
     m, nl, labelled, gentle = levels()
     state = (st.copy(), pix.copy(), gpar.copy(), gcnt.copy())
@@ -203,15 +201,12 @@ def passes(z: np.ndarray, params: dict, repeat: int) -> dict[str, float]:
         return tuple(a.copy() for a in state) + (np.zeros(top + 2, np.int64),)
 
     def prune(a: tuple) -> int:
-        if raster:
-            return gentle_prune(a[0], a[3], m, gl, a[2], a[3], nl, max_area, a[4], labelled, window[3], True,
-                                np.int64(top), None, True)
         return gentle_prune(a[0], a[1], m, gl, a[2], a[3], nl, max_area, a[4], labelled, window[3], True,
                             np.int64(top), *labels)
 
     a = prune_inputs()
     keep = int(prune(a))
-    st_kept, kept, start = a[0], a[3 if raster else 1][:keep].copy(), a[4]
+    st_kept, kept, start = a[0], a[1][:keep].copy(), a[4]
     lab = gl.copy()
 
     def flood(b: tuple) -> tuple:
@@ -361,19 +356,14 @@ def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: i
                 and np.array_equal(fo.level_counts, fn.level_counts) and np.array_equal(fo.pixel_level, fn.pixel_level))
         ok &= same
         cpu: dict[str, list[float]] = {k: [] for k in calls}
-        flt: dict[str, list[int]] = {k: [] for k in calls}
         for _ in range(repeat):
             for key, fnc in calls.items():
-                f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
                 c0 = time.process_time()
                 fnc(z)
                 cpu[key].append(time.process_time() - c0)
-                flt[key].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
         m = {k: statistics.median(v) * 1e3 for k, v in cpu.items()}
-        f = {k: statistics.median(v) for k, v in flt.items()}
         print(f"    {name:8s} zcut_outliers {m['zo']:7.2f} -> {m['zn']:7.2f} ms ({m['zo'] / m['zn']:4.2f}x), "
-              f"find_clusters {m['fo']:7.2f} -> {m['fn']:7.2f} ms ({m['fo'] / m['fn']:4.2f}x); identical: {same}; "
-              f"zcut_outliers' page faults a call {f['zo']:.0f} -> {f['zn']:.0f}")
+              f"find_clusters {m['fo']:7.2f} -> {m['fn']:7.2f} ms ({m['fo'] / m['fn']:4.2f}x); identical: {same}")
     return ok
 
 

@@ -524,7 +524,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None, raster=False):
+                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -555,11 +555,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     ``wr, wc, wh, ww``: the window of z worked on, rows ``wr .. wr + wh - 1`` and columns ``wc .. wc
     + ww - 1`` (``wc`` a multiple of SEGMENT; ``wh, ww`` = -1: the whole frame); ``st``, ``gl`` and
     the indices in ``pix`` are then the window's (padded: ``(wh + 2) * (ww + 2)``). No pixel in the
-    cuts may lie outside it.
-
-    ``raster``: every pixel of the window is in the cuts (``z_min`` at or above the lowest cut): ``pix`` is
-    not written, the pixels in the cuts being the window's in raster order (:func:`gentle_prune`'s
-    ``raster``); the dense frame's 2.3 M stores and the block's largest view saved (docs/performance.md)."""
+    cuts may lie outside it."""
     ZW = z.shape[1]
     H = z.shape[0] if wh < 0 else wh
     W = ZW if ww < 0 else ww
@@ -616,8 +612,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     if cd < _IN_CUTS:
                         continue
                     p = base + 1 + c
-                    if not raster:
-                        pix[np.uint64(m)] = p
+                    pix[np.uint64(m)] = p
                     m += 1
                     ln = np.int64(gl[np.uint64(p - Wp)])  # (read even where not in the cuts: then unused)
                     lnw = np.int64(gl[np.uint64(p - Wp - 1)])
@@ -656,8 +651,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                 if lv < 0:
                     qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                     continue
-                if not raster:
-                    pix[m] = p
+                pix[m] = p
                 m += 1
                 if not labelling:
                     continue
@@ -727,7 +721,7 @@ def _labelling_pays(gpar, gcnt, nl, m, max_area, share):  # type: ignore[no-unty
 
 
 @numba.njit(cache=True, nogil=True)
-def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, conn8, top, gls=None, raster=False):  # type: ignore[no-untyped-def]  # numba kernel
+def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, conn8, top, gls=None):  # type: ignore[no-untyped-def]  # numba kernel
     """Keep in ``pix`` only the pixels of the gentle components (:func:`gentle_levels`) of fewer
     than ``max_area`` pixels that do not lie below a pixel left out (:func:`_uphill`), count them
     per level in ``start`` (zeroed; ``start[lv + 1]``, as :func:`flood_core` wants), and mark them
@@ -736,10 +730,7 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, c
     width; ``conn8``: the z-cut's connectivity; ``top``: the deepest level in the cuts (K + 1);
     ``gpar`` is used as scratch once the sets are read. ``gls``: the labels in the order of ``pix``
     (:func:`gentle_levels`' ``gls``), read in order; without it each pixel's label is read from ``gl``
-    (a gather: the pile's pass ~2.5 x dearer, docs/performance.md). ``raster`` (:func:`gentle_levels`'
-    ``raster``): the ``m`` pixels in the cuts are every pixel of the window, rows of ``W``, in raster order, not
-    read from ``pix``; the kept pixels are written to ``pix`` all the same, which may then be ``gcnt`` (its
-    counts are read before the first kept pixel is written).
+    (a gather: the pile's pass ~2.5 x dearer, docs/performance.md).
 
     Why the flood over the kept pixels gives the outliers of the whole tree: a tagged node C is a
     component of two cuts k, k + 1, so every neighbour of C has a level >= k + 2 and no gentle
@@ -749,20 +740,7 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, c
     level k unless it touches a left-out pixel of level <= k, which :func:`flood_core` accounts
     for. The tagged nodes, as pixel sets, are the same in both trees. The argument needs only
     that no left-out pixel lies in a tagged node, so :func:`_uphill` may leave out more."""
-    Wp = W + 2
     if not labelled:
-        if raster:
-            t = 0
-            for r in range(m // W):
-                b = (r + 1) * Wp + 1
-                for c in range(W):
-                    p = b + c
-                    lv = np.int64(st[p])
-                    start[lv + 1] += 1
-                    st[p] = KEPT + lv
-                    pix[t] = p
-                    t += 1
-            return m
         for t in range(m):
             p = pix[t]
             lv = np.int64(st[p])
@@ -781,14 +759,7 @@ def gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, W, c
     # the pixels of small sets listed (no branch: the kept pixels' slots are written either way), then
     # marked; the others (86 % of the pile's) are not written
     # (unsigned indices: no wrap-around test)
-    if raster:  # the pixels in the cuts: the window's, rows of W (gcnt, if it is pix, is read no more)
-        for r in range(m // W):
-            b = (r + 1) * Wp + 1
-            for c in range(W):
-                p = b + c
-                pix[np.uint64(keep)] = p
-                keep += small[np.uint64(gl[np.uint64(p)])]
-    elif gls is not None:
+    if gls is not None:
         for t in range(m):
             p = pix[np.uint64(t)]
             pix[np.uint64(keep)] = p
@@ -1633,25 +1604,22 @@ def _aligned(nbytes):  # type: ignore[no-untyped-def]  # numba kernel
 
 
 @numba.njit(cache=True, nogil=True)
-def pruned_scratch(n, bound, n_gls, n_pix=-1):  # type: ignore[no-untyped-def]  # numba kernel
+def pruned_scratch(n, bound, n_gls):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`pruned_outliers`' scratch arrays, sized by the window (``n`` padded pixels; the pile's window is
     18 % of the frame) and by the ``bound`` on the pixels in the cuts, not by the frame: ``st`` (n,) int16,
     ``gl`` (n,) int32, ``pix``, ``gpar``, ``gcnt`` (bound,) int32 and ``gls`` (n_gls,) int32, all views of one
     block, each on a 64-byte boundary. One block, not five arrays: glibc raises its mmap and trim thresholds to the largest block
     freed, so that a call's scratch, freed, stays in the heap for the next call instead of going back to
     the system to be faulted in again page by page (the pile: ~690 faults a call, ~1.5 µs each, with five
-    arrays; none with one block; docs/performance.md). ``n_pix``: ``pix``'s length (-1: ``bound``; 0 where
-    :func:`gentle_levels` does not list the pixels, its ``raster``: the dense frame's block 41.5 -> 32.3 MB,
-    below glibc's largest mmap threshold, 32 MiB, so that it too stays in the heap between calls)."""
-    n_p = bound if n_pix < 0 else n_pix
+    arrays; none with one block; docs/performance.md)."""
     a_pix = _aligned(4 * n)
-    a_par = a_pix + _aligned(4 * n_p)
+    a_par = a_pix + _aligned(4 * bound)
     a_cnt = a_par + _aligned(4 * bound)
     a_gls = a_cnt + _aligned(4 * bound)
     a_st = a_gls + _aligned(4 * n_gls)
     block = np.empty(max(a_st + _aligned(2 * n), 1), np.uint8)
     gl = block[:4 * n].view(np.int32)
-    pix = block[a_pix:a_pix + 4 * n_p].view(np.int32)
+    pix = block[a_pix:a_pix + 4 * bound].view(np.int32)
     gpar = block[a_par:a_par + 4 * bound].view(np.int32)
     gcnt = block[a_cnt:a_cnt + 4 * bound].view(np.int32)
     gls = block[a_gls:a_gls + 4 * n_gls].view(np.int32)
@@ -1699,18 +1667,8 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     # anyway, and a frame-sized gls makes the block one that glibc maps anew at every call (page faults: the
     # dense frame 34 -> 48 ms); under half, the block stays below the largest one before gls (docs/performance.md)
     listed = some and 2 * bound <= H * W
-    # every pixel in the cuts (not some): the pixels in the cuts are the raster's, not listed in pix; the kept ones
-    # go to gcnt's slots once the sets are read (gentle_prune's raster): the dense frame's block 41.5 -> 32.3 MB
-    raster = not some
-    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0,
-                                                  0 if raster else bound)
-    if raster:
-        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, None, True)
-        start = np.zeros(top + 2, np.int64)
-        pix = gcnt
-        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, None, True)
-    elif listed:
+    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
+    if listed:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
                                         st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
         start = np.zeros(top + 2, np.int64)
