@@ -12,7 +12,8 @@ Run: ``.venv/bin/python bench/bench_zcut.py [--repeat-fast N] [--repeat-ref N] [
 run (a child process with OLD_TREE first on its path) and prints the ratio old / new, and whether
 its masks are identical. ``--alternate`` (with ``--against``) times both trees in this one process
 instead, calls alternating (a child process on a loaded machine reads slower than the same code
-here), and skips the reference and the passes.
+here), and skips the reference and the passes; it prints each tree's minor page faults a
+``zcut_outliers`` call too (medians; the trees share one heap there).
 
 Frames, heights in mm (larger = higher), seeded; nominal parameters step 0.2 mm, max_depth 30 mm,
 max_area = 0.07 * a_max (a_max = 3000 px):
@@ -356,14 +357,19 @@ def alternate(tree: Path, frames: dict[str, np.ndarray], params: dict, repeat: i
                 and np.array_equal(fo.level_counts, fn.level_counts) and np.array_equal(fo.pixel_level, fn.pixel_level))
         ok &= same
         cpu: dict[str, list[float]] = {k: [] for k in calls}
+        flt: dict[str, list[int]] = {k: [] for k in calls}
         for _ in range(repeat):
             for key, fnc in calls.items():
+                f0 = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
                 c0 = time.process_time()
                 fnc(z)
                 cpu[key].append(time.process_time() - c0)
+                flt[key].append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - f0)
         m = {k: statistics.median(v) * 1e3 for k, v in cpu.items()}
+        f = {k: statistics.median(v) for k, v in flt.items()}
         print(f"    {name:8s} zcut_outliers {m['zo']:7.2f} -> {m['zn']:7.2f} ms ({m['zo'] / m['zn']:4.2f}x), "
-              f"find_clusters {m['fo']:7.2f} -> {m['fn']:7.2f} ms ({m['fo'] / m['fn']:4.2f}x); identical: {same}")
+              f"find_clusters {m['fo']:7.2f} -> {m['fn']:7.2f} ms ({m['fo'] / m['fn']:4.2f}x); identical: {same}; "
+              f"zcut_outliers' page faults a call {f['zo']:.0f} -> {f['zn']:.0f}")
     return ok
 
 
