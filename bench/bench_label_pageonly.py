@@ -53,7 +53,9 @@ limit and the inputs, not the causes (the frames the causes are not read on: a h
 sensor, the seed: :func:`kinds_summary`): the median and the range over the frames of the IoU with the paper's truth
 and the sensor's, the truth held, the limit and the inputs, per variant, the paired changes against a variant
 (``--against NAME``), and, where the rows carry them, the wrong label pixels by class summed over the frames
-(docs/labelling.md, "Fifteenth round").
+(docs/labelling.md, "Fifteenth round"). ``--slivers`` variants of six fields, ``N:M:C:R:B:D``, also leave untried the
+regions more than B % of whose border lies more than D mm below them (``replay.pipeline.explained.SLIVER_MAX_BELOW``,
+``SLIVER_BELOW_MM``; docs/labelling.md, "Sixteenth round").
 
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
@@ -61,6 +63,7 @@ and the sensor's, the truth held, the limit and the inputs, per variant, the pai
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --config OFF.toml --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --compare BEFORE.json,AFTER.json
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --slivers 150:12:2:8 [--no-causes] --json F
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --slivers 150:12:2:8,150:24:2:8:50:2 --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --kinds F1,F2 [--against slivers150x12x2x8]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """

@@ -40,6 +40,16 @@ def shares_by_pixel(xyz: np.ndarray, valid: np.ndarray, labels: np.ndarray, belo
     return {k: float(np.mean(v)) for k, v in pairs.items()}
 
 
+@pytest.fixture(scope="module")
+def floating(nut):  # type: ignore[no-untyped-def]
+    return floating_patch(nut)
+
+
+@pytest.fixture(scope="module")
+def occluded(nut):  # type: ignore[no-untyped-def]
+    return occluded_scene(nut, 0.7)
+
+
 def floating_patch(nut):  # type: ignore[no-untyped-def]
     """(xyz, valid, patch): a 10 x 10 px patch of the nut's face floating in front of the floor, nothing else."""
     v, t, _ = nut
@@ -54,9 +64,9 @@ def floating_patch(nut):  # type: ignore[no-untyped-def]
     return xyz, np.isfinite(xyz).all(axis=2), patch
 
 
-def test_shares_match_the_definition_on_a_sliver_and_a_floating_patch(nut) -> None:  # type: ignore[no-untyped-def]
-    xyz, sliver, _ = occluded_scene(nut, 0.7)
-    fxyz, fvalid, patch = floating_patch(nut)
+def test_shares_match_the_definition_on_a_sliver_and_a_floating_patch(occluded, floating) -> None:  # type: ignore[no-untyped-def]
+    xyz, sliver, _ = occluded
+    fxyz, fvalid, patch = floating
     for x, m in ((xyz, sliver), (fxyz, patch)):
         valid = np.isfinite(x).all(axis=2)
         labels, n = ndimage.label(m & valid, structure=EIGHT)
@@ -99,9 +109,9 @@ def test_a_region_level_with_its_surroundings_or_framed_by_nothing_has_none_belo
     assert below_shares(np.zeros((0, 0, 3)), np.zeros((0, 0), bool), np.zeros((0, 0), np.int32), [1]).tolist() == [0.0]
 
 
-def test_a_floating_patch_is_not_tried_and_the_default_tries_it(nut) -> None:  # type: ignore[no-untyped-def]
+def test_a_floating_patch_is_not_tried_and_the_default_tries_it(nut, floating) -> None:  # type: ignore[no-untyped-def]
     _, _, model = nut
-    xyz, valid, patch = floating_patch(nut)
+    xyz, valid, patch = floating
     neighbour = pose(true_pose()[:3, :3], (-40.0, -20.0, 380.0))
     loose = dict(min_px=20, min_share=0.9, max_see_through=1.0)  # free space off: the patch alone decides
     assert len(fit_slivers(xyz, valid, patch, model, neighbour[None], sigma_mm=0.05,
@@ -112,10 +122,10 @@ def test_a_floating_patch_is_not_tried_and_the_default_tries_it(nut) -> None:  #
                        params=SliverParams(**loose, max_below=0.5)) == []
 
 
-def test_the_sliver_past_an_occluder_is_still_tried_under_a_loose_bound(nut) -> None:  # type: ignore[no-untyped-def]
+def test_the_sliver_past_an_occluder_is_still_tried_under_a_loose_bound(nut, occluded) -> None:  # type: ignore[no-untyped-def]
     _, _, model = nut
     T = true_pose()
-    xyz, sliver, _ = occluded_scene(nut, 0.7)
+    xyz, sliver, _ = occluded
     valid = np.isfinite(xyz).all(axis=2)
     labels, n = ndimage.label(sliver & valid, structure=EIGHT)
     s = float(below_shares(xyz, valid, labels, np.arange(1, n + 1)).max())
