@@ -53,9 +53,7 @@ limit and the inputs, not the causes (the frames the causes are not read on: a h
 sensor, the seed: :func:`kinds_summary`): the median and the range over the frames of the IoU with the paper's truth
 and the sensor's, the truth held, the limit and the inputs, per variant, the paired changes against a variant
 (``--against NAME``), and, where the rows carry them, the wrong label pixels by class summed over the frames
-(docs/labelling.md, "Fifteenth round"). ``--slivers`` variants of six fields, ``N:M:C:R:B:D``, also leave untried the
-regions more than B % of whose border lies more than D mm below them (``replay.pipeline.explained.SLIVER_MAX_BELOW``,
-``SLIVER_BELOW_MM``; docs/labelling.md, "Sixteenth round").
+(docs/labelling.md, "Fifteenth round").
 
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --logs A.mcap,B.mcap [--modes model,none]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap,B.mcap [--json F]
@@ -63,7 +61,6 @@ regions more than B % of whose border lies more than D mm below them (``replay.p
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --config OFF.toml --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --compare BEFORE.json,AFTER.json
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --slivers 150:12:2:8 [--no-causes] --json F
-    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --diagnose A.mcap --slivers 150:12:2:8,150:24:2:8:50:2 --json F
     cd WORKTREE && .venv/bin/python bench/bench_label_pageonly.py --kinds F1,F2 [--against slivers150x12x2x8]
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_label_pageonly.py --kinect --middlebury Teddy,Piano
 """
@@ -113,10 +110,9 @@ CONFIG: Path | None = None
 #: ``--fits-cache DIR`` (``--diagnose`` only): each frame's fits pickled there once and read back on later runs
 #: (:func:`fitted_frames`); None, fitted on every run.
 FITS_CACHE: Path | None = None
-#: ``--slivers N:M[:C:R[:B:D]],…`` (``--diagnose`` only): the sliver pass inside the method (``replay.pipeline.explained``
+#: ``--slivers N:M[:C:R],…`` (``--diagnose`` only): the sliver pass inside the method (``replay.pipeline.explained``
 #: ``SLIVER_MIN_PX`` = N, ``SLIVER_MAX_REGIONS`` = M, ``SLIVER_COARSE`` = C, ``SLIVER_REFINE`` = R, default 0 and
-#: 1: every guess iterated in full; N = 0: off; ``SLIVER_MAX_BELOW`` = B / 100 and ``SLIVER_BELOW_MM`` = D, default
-#: 100 and 2: every region tried) scored beside the rule as written, each variant's
+#: 1: every guess iterated in full; N = 0: off) scored beside the rule as written, each variant's
 #: fits from the same frame and job, the frame's fits and pieces on top computed once (:func:`sliver_variants`); the
 #: fits cache is then written with the pass off. None: the tree's defaults (docs/labelling.md, "Fourteenth round").
 SLIVERS: list[tuple[int, ...]] | None = None
@@ -722,8 +718,7 @@ def sliver_variants(log: Path, frame: Any, job: Any,
 
     session = pipeline_options().open_session(log)
     bin_model = session.prepared.model if session.prepared is not None else None
-    saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex.SLIVER_MAX_BELOW,
-             rex.SLIVER_BELOW_MM, rex._with_slivers)
+    saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex._with_slivers)
     spent = [0.0]
     inner = rex._with_slivers
 
@@ -737,16 +732,14 @@ def sliver_variants(log: Path, frame: Any, job: Any,
     rex._with_slivers = timed  # type: ignore[assignment]
     try:
         for v in variants:
-            n_px, m, c, r, b, d = (*v, 0, 1, 100, 2)[:6] if len(v) == 2 else (*v, 100, 2)[:6]
+            n_px, m, c, r = (*v, 0, 1)[:4]
             rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE = n_px, m, c, r
-            rex.SLIVER_MAX_BELOW, rex.SLIVER_BELOW_MM = b / 100.0, float(d)
             spent[0] = 0.0
             t = time.process_time()
             ff = fit_frame(frame, job, session.config, bin_model)
             yield "slivers" + "x".join(map(str, v)), ff, time.process_time() - t, spent[0]
     finally:
-        (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex.SLIVER_MAX_BELOW,
-         rex.SLIVER_BELOW_MM, rex._with_slivers) = saved
+        (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex._with_slivers) = saved
 
 
 def pipeline_options() -> Any:
@@ -1165,12 +1158,11 @@ def main() -> int:
                     "on the next ones (one fitting pass, several scorings; not with --seed-px or --config)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
-    ap.add_argument("--slivers", default="", metavar="N:M[:C:R[:B:D]],…",
+    ap.add_argument("--slivers", default="", metavar="N:M[:C:R],…",
                     help="with --diagnose: also score the sliver pass inside the method at N px, at most M regions "
                     "(and C coarse ICP iterations for every guess, R guesses refined; default: all) (N = 0: off), "
-                    "the regions more than B %% of whose border lies more than D mm below them not tried (default "
-                    "100: all tried), from the same frames; rows in JSON.slivers.json (docs/labelling.md, "
-                    "'Fourteenth round', 'Sixteenth round')")
+                    "from the same frames; rows in JSON.slivers.json (docs/labelling.md, 'Fourteenth "
+                    "round')")
     ap.add_argument("--no-causes", action="store_true",
                     help="with --diagnose: score without the scene's true surfaces (no cause split; a held-out set)")
     ap.add_argument("--kinds", default="", metavar="F1,F2,…",
@@ -1200,12 +1192,9 @@ def main() -> int:
         try:
             SLIVERS = [tuple(int(x) for x in v.split(":")) for v in args.slivers.split(",") if v]
         except ValueError:
-            raise SystemExit(f"error: --slivers takes N:M[:C:R[:B:D]] (integers), comma-separated, got "
-                             f"{args.slivers!r}") from None
-        if not SLIVERS or any(len(v) not in (2, 4, 6) or v[0] < 0 or min(v[1:]) < 0 or v[1] < 1
-                              or (len(v) == 6 and (v[4] > 100 or v[5] < 1)) for v in SLIVERS):
-            raise SystemExit(f"error: --slivers takes N >= 0, M >= 1 (C >= 0, R >= 1; 0 <= B <= 100, D >= 1), got "
-                             f"{args.slivers!r}")
+            raise SystemExit(f"error: --slivers takes N:M[:C:R], comma-separated, got {args.slivers!r}") from None
+        if not SLIVERS or any(len(v) not in (2, 4) or v[0] < 0 or min(v[1:]) < 0 or v[1] < 1 for v in SLIVERS):
+            raise SystemExit(f"error: --slivers takes N >= 0, M >= 1 (C >= 0, R >= 1), got {args.slivers!r}")
         import replay.pipeline.explained as rex
 
         rex.SLIVER_MIN_PX = 0  # the rule as written and the fits cache: the method without the pass

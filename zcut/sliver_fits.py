@@ -21,12 +21,7 @@ makes likely and a constraint the scan gives for free:
    ray meets it, :meth:`zcut.fits.model.PartModel.ray_depths`), a pixel whose point lies farther than
    k × Err behind the model's first hit saw through the model; a pose whose share of such pixels
    exceeds :attr:`SliverParams.max_see_through` is refused.
-4. *Under the pile's top* (optional, :attr:`SliverParams.max_below`). A region more than that share of whose
-   border lies below it (:func:`below_shares`: the valid pixel beside it, outside it, lies more than
-   :attr:`SliverParams.below_mm` farther from the camera than the region's pixel next to it) is not tried: it
-   floats in front of what surrounds it, where a sliver of an occluded part lies under what occludes it or level
-   with it. The cue reads the scan alone; the regions left are then taken the largest first.
-5. *Acceptance.* The pose of lowest residual among those with residual ≤ :attr:`SliverParams.max_residual`
+4. *Acceptance.* The pose of lowest residual among those with residual ≤ :attr:`SliverParams.max_residual`
    × the frame's median Err, a share of the region explained ≥ :attr:`SliverParams.min_share` and free
    space kept. Its explained pixels become explained.
 
@@ -45,7 +40,7 @@ from zcut.errors import InputShapeError
 from zcut.fits import PartModel
 from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
 
-__all__ = ["SliverFit", "SliverParams", "below_shares", "fit_slivers", "see_through_share"]
+__all__ = ["SliverFit", "SliverParams", "fit_slivers", "see_through_share"]
 
 EIGHT = np.ones((3, 3), bool)
 EIGHT.setflags(write=False)
@@ -100,12 +95,6 @@ class SliverParams:
         go on with the rest: the pass's CPU per region.
     refine : int
         With :attr:`coarse`, the guesses that go on.
-    max_below : float
-        A region more than this share of whose border pairs lie below it (:func:`below_shares`) is not tried
-        (before the :attr:`max_regions` largest are taken). 1: every region tried (no border read).
-    below_mm : float
-        A border pair lies below the region when its outside pixel lies more than this farther from the camera
-        (its z) than the region's pixel.
     """
 
     min_px: int = 30
@@ -125,8 +114,6 @@ class SliverParams:
     max_regions: int = 1_000_000
     coarse: int = 0
     refine: int = 6
-    max_below: float = 1.0
-    below_mm: float = 2.0
 
     def __post_init__(self) -> None:
         for name in ("min_px", "max_px", "neighbours", "iterations", "max_points", "free_checks", "max_regions",
@@ -135,10 +122,10 @@ class SliverParams:
                 raise ValueError(f"SliverParams.{name} must be at least 1, got {getattr(self, name)!r}")
         if not 0 <= int(self.coarse) <= int(self.iterations):
             raise ValueError(f"SliverParams.coarse must lie in [0, iterations], got {self.coarse!r}")
-        for name in ("gate_mm", "k", "max_residual", "below_mm"):
+        for name in ("gate_mm", "k", "max_residual"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"SliverParams.{name} must be positive, got {getattr(self, name)!r}")
-        for name in ("min_share", "max_see_through", "max_overlap", "max_below"):
+        for name in ("min_share", "max_see_through", "max_overlap"):
             v = float(getattr(self, name))
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"SliverParams.{name} must lie in [0, 1], got {v!r}")
@@ -219,66 +206,6 @@ def see_through_share(xyz_mm: np.ndarray, valid: np.ndarray, model: PartModel, p
     err = np.maximum(floor_mm, np.sqrt(sigma_mm ** 2 + foot ** 2 / 2.0))
     behind = (rng[seen] - hit[seen]) > k * err
     return float(behind.mean()), int(seen.sum())
-
-
-def below_shares(xyz_mm: np.ndarray, valid: np.ndarray, labels: np.ndarray, regions: np.ndarray, *,
-                 below_mm: float = 2.0) -> np.ndarray:
-    """Per region, the share of its border that lies below it: of the pairs (a pixel of the region, a valid
-    8-neighbour outside every region), those whose outside pixel lies more than ``below_mm`` farther from the
-    camera (its z) than the region's pixel. A region that floats in front of what surrounds it has most of its
-    border below it; a sliver of an occluded part, framed by what occludes it, little.
-
-    Parameters
-    ----------
-    xyz_mm : (H, W, 3) float ndarray
-        The organized cloud (camera frame, mm).
-    valid : (H, W) bool ndarray
-    labels : (H, W) int ndarray
-        The regions (0: none, 1..n), e.g. ``scipy.ndimage.label`` of the unexplained pixels.
-    regions : (m,) int ndarray
-        The labels to measure (the others are not read).
-    below_mm : float
-
-    Returns
-    -------
-    (n + 1,) float64 ndarray
-        Indexed by label: the share (0 for a region with no valid pixel outside beside it, and for every label not
-        in ``regions``).
-    """
-    labels = np.asarray(labels)
-    valid = np.asarray(valid, bool)
-    if labels.ndim != 2 or valid.shape != labels.shape or np.shape(xyz_mm) != (*labels.shape, 3):
-        raise InputShapeError(f"below_shares: xyz_mm (H, W, 3), valid and labels (H, W) expected, got "
-                              f"{np.shape(xyz_mm)}, {valid.shape}, {labels.shape}")
-    H, W = labels.shape
-    n = int(labels.max()) if labels.size else 0
-    lab = labels.ravel()
-    sel = np.zeros(n + 1, bool)
-    regions = np.asarray(regions, np.int64).ravel()
-    sel[regions[(regions > 0) & (regions <= n)]] = True
-    pix = np.flatnonzero(sel[lab])
-    below = np.zeros(n + 1)
-    pairs = np.zeros(n + 1)
-    if not pix.size:
-        return below
-    z = np.asarray(xyz_mm, np.float64)[..., 2].ravel()
-    ok_out = valid.ravel() & (lab == 0)
-    r, c = np.divmod(pix, W)
-    lp, zp = lab[pix], z[pix]
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            if not (dy or dx):
-                continue
-            rr, cc = r + dy, c + dx
-            inside = (rr >= 0) & (rr < H) & (cc >= 0) & (cc < W)
-            q = rr[inside] * W + cc[inside]
-            out = ok_out[q]
-            l_ = lp[inside][out]
-            with np.errstate(invalid="ignore"):
-                lower = z[q][out] - zp[inside][out] > below_mm
-            pairs += np.bincount(l_, minlength=n + 1)
-            below += np.bincount(l_, weights=lower, minlength=n + 1)
-    return np.divide(below, pairs, out=np.zeros(n + 1), where=pairs > 0)
 
 
 def _distinct(rotations: list[np.ndarray], model: PartModel, tol: float = 0.05) -> list[np.ndarray]:
@@ -375,8 +302,6 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     sizes = np.bincount(labels.ravel(), minlength=n + 1)
     keep = np.flatnonzero((sizes >= p.min_px) & (sizes <= p.max_px))
     keep = keep[keep > 0]
-    if p.max_below < 1.0 and keep.size:  # the regions floating in front of what surrounds them are not tried
-        keep = keep[below_shares(xyz_mm, valid, labels, keep, below_mm=p.below_mm)[keep] <= p.max_below]
     keep = keep[np.argsort(-sizes[keep], kind="stable")][:p.max_regions]  # the largest first, at most max_regions
     if not keep.size:
         return []

@@ -105,12 +105,6 @@ JOIN_SLAB_MM = 5.0
 SLIVER_MAX_REGIONS = 12
 SLIVER_COARSE = 2
 SLIVER_REFINE = 8
-#: ... and, before the largest are taken, a region more than this share of whose border lies more than
-#: :data:`SLIVER_BELOW_MM` farther from the camera than the region beside it is not tried
-#: (:attr:`zcut.sliver_fits.SliverParams.max_below`: it floats in front of what surrounds it; a sliver of an occluded
-#: part lies under what occludes it); 1: every region tried
-SLIVER_MAX_BELOW = 1.0
-SLIVER_BELOW_MM = 2.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -407,8 +401,7 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
     found = fit_slivers(xyz, np.isfinite(xyz).all(axis=2), un, prepared, np.stack([f.pose for f in fits]),
                         sigma_mm=sigma, intrinsics=intr,
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
-                                            refine=SLIVER_REFINE, k=float(p.k), floor_mm=float(p.err_floor_mm),
-                                            max_below=SLIVER_MAX_BELOW, below_mm=SLIVER_BELOW_MM))
+                                            refine=SLIVER_REFINE, k=float(p.k), floor_mm=float(p.err_floor_mm)))
     if not found:
         return fits, surfaces, near, 0
     more = [PartFit(s.pose, sigma, s.share, s.pixels) for s in found]
