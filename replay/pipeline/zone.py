@@ -80,20 +80,13 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
     highest valid height and K = floor(d_max / Δd + 1e-9), computed as the z-cut computes its
     thresholds (docs/filters.md). SOR and the z-cut then judge the same top portion of the data.
     """
-    return _top_region(height_mm, zone, zcut)[0]
-
-
-def _top_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams
-                ) -> tuple[np.ndarray, tuple[slice, slice] | None]:
-    """:func:`sor_region` and the slices of its bounding box (:func:`zone_box`; None when it is empty), in two
-    passes over the heights (:mod:`zcut.sor_region`: the same values as the NumPy expressions it replaced)."""
-    from zcut.sor_region import finite_max, region_at_or_above  # numba's kernel, loaded where used
-
-    z_max = finite_max(height_mm)
-    if z_max is None:
-        return np.zeros_like(zone), None
+    finite = np.isfinite(height_mm)
+    if not finite.any():
+        return np.zeros_like(zone)
+    z_max = float(np.max(height_mm, where=finite, initial=-np.inf))  # no copy of the finite heights
     threshold = z_max - zcut.n_levels * zcut.step
-    return region_at_or_above(height_mm, zone, threshold)
+    with np.errstate(invalid="ignore"):
+        return zone & (height_mm >= threshold)
 
 
 def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool
@@ -126,22 +119,16 @@ def zone_box(zone: np.ndarray) -> tuple[slice, slice] | None:
 def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw: Any) -> np.ndarray:
     """(H, W) bool: SOR outliers among the zone's points only (as on the frame with the rest set to
     NaN: SOR's ``mask`` on the zone's bounding box, no masked copy)."""
-    if whole:
-        from zcut.sor import sor_outliers  # numba's kernels, loaded where used
-
-        return np.asarray(sor_outliers(xyz, **kw) & zone)
-    return _sor_in_box(xyz, zone, zone_box(zone), **kw)
-
-
-def _sor_in_box(xyz: np.ndarray, zone: np.ndarray, sl: tuple[slice, slice] | None, **kw: Any) -> np.ndarray:
-    """(H, W) bool: :func:`_sor_on_zone` of a zone whose bounding box ``sl`` is known (None: the zone is empty)."""
     from zcut.sor import sor_outliers  # numba's kernels, loaded where used
 
     out = np.zeros_like(zone)
+    if whole:
+        return np.asarray(sor_outliers(xyz, **kw) & zone)
+    sl = zone_box(zone)
     if sl is None:
         return out
     z = zone[sl]
-    np.logical_and(sor_outliers(xyz[sl], mask=z, **kw), z, out=out[sl])
+    out[sl] = sor_outliers(xyz[sl], mask=z, **kw) & z
     return out
 
 
@@ -197,13 +184,18 @@ class Zone:
     bin_check: BinCheck | None = None
 
 
+def sor_judged(zone: Zone, config: SorConfig) -> np.ndarray:
+    """(H, W) bool: the points SOR judges for ``config.sor.region``."""
+    if config.sor.region == "zone":
+        return zone.zone
+    return sor_region(zone.height_mm, zone.zone, config.zcut)
+
+
 def sor_on_zone(frame: Frame, zone: Zone, config: SorConfig) -> np.ndarray:
     """(H, W) bool: SOR's outliers among the points it judges (easy outliers not included)."""
     s = config.sor
-    if s.region == "zone":
-        return _sor_on_zone(frame.xyz, zone.zone, whole=zone.removal is None, k=s.k, std_ratio=s.std_ratio,
-                            convention=s.convention)
-    judged, box = _top_region(zone.height_mm, zone.zone, config.zcut)  # the region and its box in one pass
-    return _sor_in_box(frame.xyz, judged, box, k=s.k, std_ratio=s.std_ratio, convention=s.convention)
+    return _sor_on_zone(frame.xyz, sor_judged(zone, config),
+                        whole=zone.removal is None and s.region == "zone", k=s.k, std_ratio=s.std_ratio,
+                        convention=s.convention)
 
 
