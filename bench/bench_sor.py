@@ -53,7 +53,7 @@ prefix ``NUMBA_NUM_THREADS=1``, for the previous code run this file with ``PYTHO
 The SOR stage inside a replay: ``--stage LOG.mcap [--against OLD_TREE]`` runs the bin stages on
 every frame of the log (its own bin model, its config) and times the pipeline's SOR stage on the
 zone they leave (``replay.pipeline.zone.sor_on_zone``: the judged region, its crop, the filter;
-CPU ms, median of --repeat), with the previous tree's in a subprocess, alternately frame by frame
+CPU ms, median of --repeat; ``--frames N``: the first N frames), with the previous tree's in a subprocess, alternately frame by frame
 and round by round as for the classes, and whether its masks are this code's bit for bit.
 """
 
@@ -504,7 +504,7 @@ def _serve() -> int:
             res = time_both(np.load(cloud), k, std_ratio, 1)
             np.savez(out, **{f"t_{c}": t for c, (t, _) in res.items()}, **{f"m_{c}": m for c, (_, m) in res.items()})
         elif words[0] == "stage-open":
-            stage = stage_zones(Path(words[1]))
+            stage = stage_zones(Path(words[1]), int(words[2]) if len(words) > 2 else 0)
             print(f"done {len(stage)}", flush=True)
             continue
         elif words[0] == "stage":
@@ -526,9 +526,9 @@ def open3d_outliers(pts: np.ndarray, valid: np.ndarray, k: int, std_ratio: float
     return t, out
 
 
-def stage_zones(log: Path) -> list[tuple[object, ...]]:
-    """(frame, zone, config) of every frame of ``log`` after the bin stages (its own bin model, its
-    config), ready for the pipeline's SOR stage."""
+def stage_zones(log: Path, frames: int = 0) -> list[tuple[object, ...]]:
+    """(frame, zone, config) of every frame of ``log`` (its first ``frames`` when > 0) after the bin stages (its
+    own bin model, its config), ready for the pipeline's SOR stage."""
     from replay.pipeline import stages
     from replay.pipeline.bin_model import bin_model_for
     from replay.pipeline.session import ReplaySession
@@ -536,7 +536,7 @@ def stage_zones(log: Path) -> list[tuple[object, ...]]:
     warm_up(4)
     session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
     out: list[tuple[object, ...]] = []
-    for frame in session.reader.frames():
+    for frame in session.reader.frames(stop=frames or None):
         located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
         zone = stages.bin_zone(frame, session.config, bin_model=session.prepared, located=located)
         out.append((frame, zone, session.config))
@@ -552,18 +552,19 @@ def time_stage(item: tuple[object, ...]) -> tuple[float, np.ndarray]:
     return t, np.asarray(mask)
 
 
-def stage_main(log: Path, against: Path | None, repeat: int) -> int:
-    """Print the SOR stage's CPU ms per frame of ``log``, this code and (``against``) the previous,
-    alternately (frame by frame, the order flipping every round); medians of ``repeat`` rounds."""
+def stage_main(log: Path, against: Path | None, repeat: int, frames: int = 0) -> int:
+    """Print the SOR stage's CPU ms per frame of ``log`` (its first ``frames`` when > 0), this code and
+    (``against``) the previous, alternately (frame by frame, the order flipping every round); medians of
+    ``repeat`` rounds."""
     import tempfile
 
     print(f"SOR stage of {log}: CPU ms (all threads), median of {repeat} rounds; load average {load_average()}"
           + (f"; previous code: {against}, alternately" if against else ""), flush=True)
-    zones = stage_zones(log)
+    zones = stage_zones(log, frames)
     scratch = tempfile.TemporaryDirectory(prefix="bench-sor-")
     prev = Previous(against, Path(scratch.name)) if against is not None else None
     if prev is not None:
-        prev.ask("stage-open", log)
+        prev.ask("stage-open", log, frames)
     times: list[list[float]] = [[] for _ in zones]
     prev_t: list[list[float]] = [[] for _ in zones]
     masks: list[np.ndarray] = [np.zeros(0, bool)] * len(zones)
@@ -727,6 +728,8 @@ def main() -> int:
                         help="also time the previous code of this source tree on every cloud, and compare its masks")
     parser.add_argument("--stage", metavar="LOG", type=Path,
                         help="time the pipeline's SOR stage on every frame of this log instead of the classes")
+    parser.add_argument("--frames", type=int, default=0,
+                        help="--stage: the log's first N frames only (default 0: every frame)")
     parser.add_argument("--faults", choices=("row", "open3d"),
                         help="print CPU ms, system ms and page faults a call (calls in a row, or Open3D between them)")
     parser.add_argument("--phases", action="store_true",
@@ -738,7 +741,7 @@ def main() -> int:
     if args.serve:
         return _serve()
     if args.stage:
-        return stage_main(args.stage, args.against, args.repeat)
+        return stage_main(args.stage, args.against, args.repeat, args.frames)
     if args.phases:
         chosen = cloud_classes(args.seed)
         wanted = [c for c in args.classes.split(",") if c]
