@@ -89,8 +89,9 @@ def test_suspects_group_the_patch_with_its_gap() -> None:
     h[20:30, 30:42] += 40.0
     xyz = xyz_of(h)
     zone = np.ones(h.shape, bool)
-    assert 120 <= PATCH_RHO * 0.01 * h.size  # a_max: 1 % of the frame
-    res = suspects(xyz, h, zone, params=SuspectParams())
+    params = SuspectParams(a_max=1000.0)
+    assert 120 <= PATCH_RHO * params.a_max
+    res = suspects(xyz, h, zone, params=params)
     bit = PATCH
     assert DETECTORS[-1] == "patch" and bit == 1 << (len(DETECTORS) - 1)
     flagged = (res.detectors & bit) > 0
