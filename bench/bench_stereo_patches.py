@@ -6,7 +6,8 @@ computes them (:func:`annotate.groups.review_groups` on the replay's result, the
 the fallback rule of docs/labelling.md ("A person who reads only the page": a group is an outlier when its gap exceeds
 3 × τ, τ the rise slider's starting value, the frame's threshold to 0.1 mm; with no surface below, when it was grouped
 as floating or above the rim) is applied to their table, and the label is scored against the measured truth
-(``/ground_truth/outliers``, ``/ground_truth/unknown`` left out): IoU, the truth held (its share inside any group), the
+(``/ground_truth/outliers``, ``/ground_truth/unknown`` left out; on a synthetic log the paper's truth,
+``/ground_truth/off_surface``; a real scan without truth gets the counts only): IoU, the truth held (its share inside any group), the
 per-group limit (each group decided by the majority of its truth), the groups and the groups the rule calls outliers.
 Run it in two trees (``--against DIR``: the same log scored by DIR's code in a subprocess, in the same run) to compare.
 
@@ -103,7 +104,7 @@ def score_log(log: Path, scenes: list[str], wanted: set[int] | None) -> list[dic
         unknown = frame.masks.get(layout.TRUTH_UNKNOWN)
         scored = valid if unknown is None else valid & ~unknown
         region = zone & scored
-        truth = frame.masks.get(layout.TRUTH_OUTLIERS)
+        truth = frame.masks.get(layout.TRUTH_OFF_SURFACE, frame.masks.get(layout.TRUTH_OUTLIERS))  # the paper's first
         P = (truth if truth is not None else np.zeros_like(valid)) & region
         label, n_out = fallback_label(g.ids, g.table, g.sources, g.threshold_mm)
         label &= region
@@ -149,7 +150,8 @@ def smooth_patches(h: np.ndarray, valid: np.ndarray, jump: np.ndarray) -> np.nda
     return (inv.reshape(H, W) + (0 if u[0] == 0 else 1)).astype(np.int64)
 
 
-def explore(log: Path, scenes: list[str], wanted: set[int] | None, cs: list[float], sizes: list[int]) -> list[dict]:
+def explore(log: Path, scenes: list[str], wanted: set[int] | None, cs: list[float], sizes: list[int],
+            shares: list[float]) -> list[dict]:
     from replay.logs import layout
     from zcut.params import SuspectParams
     from zcut.suspects.noise import noise_profile
@@ -170,23 +172,34 @@ def explore(log: Path, scenes: list[str], wanted: set[int] | None, cs: list[floa
         name = scenes[frame.index] if frame.index < len(scenes) else "?"
         print(f"{name}: truth {int(P.sum())} px, held {int((P & held).sum())} ({(P & held).sum() / max(P.sum(), 1):.3f}),"
               f" zone {int(region.sum())} px, median jump {np.nanmedian(jump[zone]):.1f} mm", flush=True)
+        H, W = h.shape
         for c in cs:
             lab = smooth_patches(h, valid, c * jump)
             n = int(lab.max())
             size = np.bincount(lab.ravel(), minlength=n + 1)
             tp = np.bincount(lab.ravel(), weights=P.ravel(), minlength=n + 1)
+            steps = np.zeros(n + 1, np.int64)
+            opn = np.zeros(n + 1, np.int64)
+            pl = np.pad(lab, 1, constant_values=0)
+            for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+                nb = pl[1 + dr:1 + dr + H, 1 + dc:1 + dc + W]
+                steps += np.bincount(lab[valid & (nb > 0) & (nb != lab)], minlength=n + 1)
+                opn += np.bincount(lab[valid & (nb == 0)], minlength=n + 1)
+            share = steps / np.maximum(steps + opn, 1)
             for s in sizes:
-                small = (size <= s)
-                small[0] = False
-                m = small[lab] & region
-                new = P & m & ~held
-                row = {"scene": name, "c": c, "max_px": s, "patches": int(small.sum()), "px": int(m.sum()),
-                       "truth_in": int((P & m).sum()), "precision": float((P & m).sum() / max(m.sum(), 1)),
-                       "held_new": float(((P & held) | (P & m)).sum() / max(P.sum(), 1)), "added_truth": int(new.sum()),
-                       "patch_major": int(((tp >= 0.5 * size) & small).sum())}
-                out.append(row)
-                print(f"  c {c:g} ≤{s} px: {row['patches']} patches ({row['patch_major']} mostly truth), {row['px']} px, "
-                      f"precision {row['precision']:.2f}, held {row['held_new']:.3f}", flush=True)
+                for v in shares:
+                    small = (size <= s) & (steps > 0) & (share >= v)
+                    small[0] = False
+                    m = small[lab] & region
+                    new = P & m & ~held
+                    row = {"scene": name, "c": c, "max_px": s, "share": v, "patches": int(small.sum()), "px": int(m.sum()),
+                           "truth_in": int((P & m).sum()), "precision": float((P & m).sum() / max(m.sum(), 1)),
+                           "held_new": float(((P & held) | (P & m)).sum() / max(P.sum(), 1)),
+                           "added_truth": int(new.sum()), "patch_major": int(((tp >= 0.5 * size) & small).sum())}
+                    out.append(row)
+                    print(f"  c {c:g} ≤{s} px step share ≥{v:g}: {row['patches']} patches ({row['patch_major']} mostly "
+                          f"truth), {row['px']} px, precision {row['precision']:.2f}, held {row['held_new']:.3f}",
+                          flush=True)
     return out
 
 
@@ -199,13 +212,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--explore", action="store_true", help="the smooth patches' truth, per frame (no groups changed)")
     ap.add_argument("--c", default="0.5,1,2", help="--explore: multiples of the suspects' jump")
     ap.add_argument("--sizes", default="100,400,1600,6400,25600", help="--explore: largest patch sizes (px)")
+    ap.add_argument("--shares", default="0,0.5,0.8", help="--explore: least share of a patch's border that is a step")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
     scenes = [s for s in a.scenes.split(",") if s]
     wanted = {int(v) for v in a.frames.split(",") if v} or None
     if a.explore:
-        rows = explore(a.log, scenes, wanted, [float(v) for v in a.c.split(",")], [int(v) for v in a.sizes.split(",")])
+        rows = explore(a.log, scenes, wanted, [float(v) for v in a.c.split(",")], [int(v) for v in a.sizes.split(",")],
+                       [float(v) for v in a.shares.split(",")])
         if a.json:
             a.json.write_text(json.dumps(rows, indent=1))
         return 0
