@@ -125,7 +125,7 @@ def _wait_assistant(client, pred, timeout_s=120):
 @pytest.mark.slow
 def test_the_page_trains_in_the_background_and_proposes(tmp_path):
     log = tmp_path / "spikes.mcap"
-    write_spike_log(log, frames=4, shape=(120, 160), seed=2)
+    write_spike_log(log, frames=6, shape=(120, 160), seed=2)
     srv = ServerProcess(log, tmp_path / "labels.sqlite", annotator="alice")
     try:
         with srv.page_client() as c:
@@ -147,13 +147,13 @@ def test_the_page_trains_in_the_background_and_proposes(tmp_path):
                 big = t[t[:, GCOL["n"]] >= 16, GCOL["id"]].astype(np.int64)
                 return h, a, np.isin(a["groups"], big) & a["valid"], set(big.tolist())
 
-            for i, base in ((0, 1), (1, 0), (2, 0)):
+            for i, base in ((0, 1), (1, 0), (2, 0), (3, 0), (4, 0)):
                 h, a, L, _ = judged(i)
                 _put(c, i, h, L, a["valid"], base=base)
             j = _wait_assistant(c, lambda j: j["model"] is not None and j["model"]["held_out"]["frames"] >= 2)
-            assert j["model"]["frames"] == 3 and "held-out" in j["message"]
-            h3, _, _, big3 = judged(3)
-            p = c.get("/api/frames/3/proposals").json()
+            assert j["model"]["frames"] == 5 and "held-out" in j["message"]
+            h3, _, _, big3 = judged(5)
+            p = c.get("/api/frames/5/proposals").json()
             assert len(p["p"]) == h3["n_groups"] and p["version"] == j["version"]
             assert all(0 <= v <= 1 for v in p["p"])
             rows = c.get("/api/frames").json()["frames"]

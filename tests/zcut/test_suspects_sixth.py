@@ -11,7 +11,7 @@ from scipy import ndimage
 from test_suspects import random_heights
 
 from zcut.edge_surface import EdgeSurfaceParams
-from zcut.suspects import ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, local_gaps
+from zcut.suspects import ABOVE_RIM, DETECTORS, FLOATING, PATCH, RESIDUAL_UP, local_gaps
 from zcut.suspects.detectors import label_medians
 from zcut.suspects.surfaces import lazy_surfaces
 
@@ -105,6 +105,7 @@ def test_fused_codes_gaps_and_tables_equal_the_numpy_they_replace() -> None:
         off = codes0 > 0
         filled = off | (rng.random(shape) < 0.05)
         floating = rng.random(shape) < 0.05
+        patch = rng.random(shape) < 0.05
         residual = rng.normal(0, 3, shape)
         residual[rng.random(shape) < 0.1] = float(rng.choice([np.inf, np.nan, -0.0]))
 
@@ -112,6 +113,7 @@ def test_fused_codes_gaps_and_tables_equal_the_numpy_they_replace() -> None:
         codes[filled & ~off] = RESIDUAL_UP
         codes[floating] |= FLOATING
         codes[easy] |= ABOVE_RIM
+        codes[patch] |= PATCH
         mask = codes > 0
         by_residual = off & ((codes & (FLOATING | ABOVE_RIM)) == 0) & np.isfinite(residual)
         gap = local_gaps(h, mask & ~by_residual & ~floating, valid & ~mask)
@@ -119,7 +121,7 @@ def test_fused_codes_gaps_and_tables_equal_the_numpy_they_replace() -> None:
 
         got_codes = codes0.copy()
         outs = [np.empty(shape, bool) for _ in range(4)]
-        n_res = union._codes_and_masks(got_codes, off, filled, floating, easy, residual, valid, h, *outs)
+        n_res = union._codes_and_masks(got_codes, off, filled, floating, easy, patch, residual, valid, h, *outs)
         got_mask, got_by, gap_at, surface = outs
         np.testing.assert_array_equal(got_codes, codes)
         np.testing.assert_array_equal(got_mask, mask)

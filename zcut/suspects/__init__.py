@@ -23,6 +23,9 @@ thresholds taken from the frame's own noise:
   larger than ``plain_rho · a_max`` only with evidence that they are not a clean measured surface
   (holes inside, rough, or hovering over measured points).
 - ``above_rim`` — the points above the rim, which the pipeline's removal flags (given as a mask).
+- ``patch`` — **patches cut off by depth steps** (:mod:`~zcut.suspects.patches`): small pieces of the depth
+  image that a depth step, not a hole, bounds on most of their border — a surface at another depth than all
+  the measured surface around it (a stereo matcher's wrong match over a whole patch).
 
 :func:`suspects` runs them all and groups the result for review: per detector, suspects within a
 merge radius form one group; the radius of the detector with most groups doubles until the frame
@@ -56,6 +59,7 @@ from .detectors import (
     DETECTORS,
     FLOATING,
     MIXED,
+    PATCH,
     RESIDUAL_DOWN,
     RESIDUAL_UP,
     detector_bits,
@@ -81,6 +85,13 @@ from .noise import (
     local_height,
     noise_profile,
 )
+from .patches import (
+    PATCH_JUMP_FACTOR,
+    PATCH_MIN_STEP_SHARE,
+    PATCH_RHO,
+    cut_off_patches,
+    cut_off_patches_reference,
+)
 from .residuals import (
     FILL_MIN_NEIGHBOURS,
     fill_blobs,
@@ -96,6 +107,8 @@ __all__ = [
     "SuspectResult",
     "detector_bits",
     "detector_names",
+    "cut_off_patches",
+    "cut_off_patches_reference",
     "fill_blobs",
     "fill_blobs_reference",
     "floating_evidence",
@@ -115,6 +128,7 @@ __all__ = [
     "ABOVE_RIM",
     "FLOATING",
     "MIXED",
+    "PATCH",
     "RESIDUAL_DOWN",
     "RESIDUAL_UP",
     "FILL_MIN_NEIGHBOURS",
@@ -128,6 +142,9 @@ __all__ = [
     "NOISE_MAX_BINS",
     "NOISE_MAX_SAMPLES",
     "NOISE_MIN_SAMPLES",
+    "PATCH_JUMP_FACTOR",
+    "PATCH_RHO",
+    "PATCH_MIN_STEP_SHARE",
     "QUANTIZED_ZERO_SHARE",
     "STRENGTH_CLASSES",
 ]

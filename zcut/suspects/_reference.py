@@ -29,6 +29,7 @@ from .detectors import (
     DETECTORS,
     FLOATING,
     MIXED,
+    PATCH,
     RESIDUAL_DOWN,
     RESIDUAL_UP,
     label_medians,
@@ -51,6 +52,7 @@ from .noise import (
     _robust_sigma,
     _second_differences,
 )
+from .patches import PATCH_RHO, cut_off_patches_reference
 from .residuals import FILL_MIN_NEIGHBOURS, _check_fill_args, _check_residual_args
 from .union import SuspectResult
 
@@ -630,6 +632,7 @@ def suspects_reference(
     floating, floating_gap = floating_components_reference(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
     codes[floating] |= FLOATING
     codes[easy] |= ABOVE_RIM
+    codes[cut_off_patches_reference(context, jump, max_px=PATCH_RHO * a_max) & zone] |= PATCH
     mask = codes > 0
 
     # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the

@@ -11,8 +11,8 @@ from ..errors import ParameterError
 
 #: Detector names, in the order of their bits (bit i = 1 << i) and of precedence: a pixel flagged by
 #: several detectors is grouped with the first of them here.
-DETECTORS = ("above_rim", "floating", "mixed", "residual_down", "residual_up")
-ABOVE_RIM, FLOATING, MIXED, RESIDUAL_DOWN, RESIDUAL_UP = (1 << i for i in range(len(DETECTORS)))
+DETECTORS = ("above_rim", "floating", "mixed", "residual_down", "residual_up", "patch")
+ABOVE_RIM, FLOATING, MIXED, RESIDUAL_DOWN, RESIDUAL_UP, PATCH = (1 << i for i in range(len(DETECTORS)))
 
 # the 8 directions (row, column) and the index of the opposite of each
 _DR = (0, 0, 1, -1, 1, 1, -1, -1)

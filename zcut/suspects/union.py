@@ -15,11 +15,21 @@ from ..errors import InputShapeError, ParameterError, describe_array
 from ..params import SuspectParams
 from ..sor_workspace import SorWorkspace
 from ..types import XYZ, FloatImage, Labels, Mask
-from .detectors import ABOVE_RIM, DETECTORS, FLOATING, RESIDUAL_UP, detector_bits, detector_names, label_medians
+from .detectors import (
+    ABOVE_RIM,
+    DETECTORS,
+    FLOATING,
+    PATCH,
+    RESIDUAL_UP,
+    detector_bits,
+    detector_names,
+    label_medians,
+)
 from .floating import FLOATING_STEP_SIGMAS, floating_components
 from .gaps import GAP_MAX_RADIUS, GAP_MIN_PIXELS, _gap_kernel
 from .grouping import group_suspects
 from .noise import NoiseProfile, local_height, noise_profile
+from .patches import PATCH_RHO, cut_off_patches
 from .residuals import fill_blobs, surface_residuals
 from .select import order_pair_large
 from .surfaces import LazySurfaces, gate_arrays, lazy_surfaces
@@ -344,9 +354,10 @@ def _gap_ratio(gap, tau, min_residual, out):  # type: ignore[no-untyped-def]  # 
 
 
 @numba.njit(cache=True)
-def _codes_and_masks(codes, off, filled, floating, easy, residual, valid, h, mask, by_residual, gap_at, surface):  # type: ignore[no-untyped-def]  # numba kernel
+def _codes_and_masks(codes, off, filled, floating, easy, patch, residual, valid, h, mask, by_residual, gap_at, surface):  # type: ignore[no-untyped-def]  # numba kernel
     """One pass of what ``suspects()`` did with whole-frame numpy between the detectors and the gaps:
     ``codes[filled & ~off] = RESIDUAL_UP``, ``codes[floating] |= FLOATING``, ``codes[easy] |= ABOVE_RIM``,
+    ``codes[patch] |= PATCH``,
     ``mask = codes > 0``, ``by_residual = off & (codes & (FLOATING | ABOVE_RIM) == 0) & isfinite(residual)``,
     :func:`local_gaps`' suspects ``mask & ~by_residual & ~floating`` and its surface ``valid & ~mask &
     isfinite(h)``. Returns the count of ``by_residual``."""
@@ -355,6 +366,7 @@ def _codes_and_masks(codes, off, filled, floating, easy, residual, valid, h, mas
     f_ = filled.reshape(-1)
     fl = floating.reshape(-1)
     e_ = easy.reshape(-1)
+    p_ = patch.reshape(-1)
     r_ = residual.reshape(-1)
     v_ = valid.reshape(-1)
     h_ = h.reshape(-1)
@@ -371,6 +383,8 @@ def _codes_and_masks(codes, off, filled, floating, easy, residual, valid, h, mas
             c |= FLOATING
         if e_[q]:
             c |= ABOVE_RIM
+        if p_[q]:
+            c |= PATCH
         c_[q] = c
         m = c > 0
         m_[q] = m
@@ -647,6 +661,9 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
     judged_ctx = valid & ~easy
     filled = (fill_blobs(off, zone, judged_ctx, iterations=params.fill_iterations) if params.fill_iterations > 0
               else off)
+    # the patches cut off by depth steps, from the jumps (before the floating detector takes their array)
+    patch = cut_off_patches(context, jump, max_px=PATCH_RHO * a_max)
+    patch &= zone
     rough = np.empty((H, W), bool)
     _rough(zone, residual, tau, rough)  # in the zone: inf (no continuation) is rough
     # the zone's heights in the jump's array (surface_residuals, its only reader, is done; the gate takes it later)
@@ -660,7 +677,7 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
     # component's border)
     mask, by_residual = np.empty((H, W), bool), np.empty((H, W), bool)
     gap_at, surface_px = np.empty((H, W), bool), np.empty((H, W), bool)
-    n_res = _codes_and_masks(codes, off, filled, floating, easy, residual, valid, h_all, mask, by_residual, gap_at,
+    n_res = _codes_and_masks(codes, off, filled, floating, easy, patch, residual, valid, h_all, mask, by_residual, gap_at,
                              surface_px)
     gap = np.empty((H, W))
     _gap_kernel(h_all, gap_at, surface_px, GAP_MIN_PIXELS, GAP_MAX_RADIUS, gap)  # local_gaps(h_all, ...)

@@ -1,0 +1,203 @@
+"""The patch detector: pieces of the depth image cut off from everything measured around them by depth steps.
+
+``patch`` (see :mod:`zcut.suspects`): the measured pixels are joined into 4-connected pieces, two neighbours
+joined when their heights differ by at most :data:`PATCH_JUMP_FACTOR` × the smaller of their jumps (the suspects'
+``max(jump_mm, noise_k · σ̂)`` at each, σ̂ the frame's noise at their height). A piece is a suspect patch when it
+is small — at most :data:`PATCH_RHO` · a_max pixels, a_max the part's largest face (``SuspectParams.a_max``; 1 %
+of the frame without one) — and a depth step, not an unmeasured pixel or
+the image's border, bounds at least :data:`PATCH_MIN_STEP_SHARE` of its border: a patch of surface at another
+depth than all the measured surface around it. A stereo matcher's wrong matches are such patches (a smooth
+surface at the wrong disparity inside a right one, docs/labelling_real.md); a real object standing free in front
+of a surface is one too, which is why the patch is proposed for review and not removed.
+
+:func:`cut_off_patches` is the numba kernel's entry, :func:`cut_off_patches_reference` its literal version
+(scipy's connected components of the joined pairs, then ``np.bincount``); they agree bit for bit
+(``tests/zcut/test_suspects_patches.py``).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from ..errors import InputShapeError, describe_array
+from .detectors import _DC, _DR
+
+#: two measured 4-neighbours belong to one piece when their heights differ by at most this many times the
+#: smaller of their jumps
+PATCH_JUMP_FACTOR = 1.0
+#: a patch holds at most this many times a_max pixels (the part's largest face; 1 % of the frame without one)
+PATCH_RHO = 0.3
+#: at least this share of a patch's border (its 4-neighbour sides that leave it) lies against measured pixels
+#: across a depth step; the rest is unmeasured pixels or the image's border
+PATCH_MIN_STEP_SHARE = 0.5
+
+
+def _check(h: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    h = np.asarray(h)
+    jump = np.asarray(jump)
+    if h.ndim != 2 or h.dtype.kind != "f":
+        raise InputShapeError(f"height_mm must be an (H, W) float array, got {describe_array(h)}")
+    if jump.shape != h.shape or jump.dtype.kind != "f":
+        raise InputShapeError(f"jump_mm must be a float array of the heights' shape {h.shape}, got {describe_array(jump)}")
+    return np.ascontiguousarray(h, np.float64), np.ascontiguousarray(jump, np.float64)
+
+
+@numba.njit(cache=True)
+def _find(parent, x):  # type: ignore[no-untyped-def]  # numba kernel
+    """The root of ``x`` (halving the path)."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
+@numba.njit(cache=True)
+def _joined(h, jump, factor, p, q):  # type: ignore[no-untyped-def]  # numba kernel
+    """Whether flat pixels p and q (both measured) are one piece (``np.minimum`` of the jumps: NaN if either is)."""
+    a = jump[p]
+    b = jump[q]
+    if a != a or b != b:
+        return False
+    return abs(h[p] - h[q]) <= factor * (a if a <= b else b)
+
+
+@numba.njit(cache=True)
+def _patch_kernel(h2, jump2, factor, max_px, min_step_share, out2):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`cut_off_patches_reference` into ``out2`` (bool, (H, W)); returns the number of patches."""
+    H, W = h2.shape
+    h = h2.reshape(-1)
+    jump = jump2.reshape(-1)
+    out = out2.reshape(-1)
+    n = H * W
+    parent = np.arange(n)
+    for i in range(H):
+        for j in range(W):
+            p = i * W + j
+            if not np.isfinite(h[p]):
+                continue
+            if j + 1 < W and np.isfinite(h[p + 1]) and _joined(h, jump, factor, p, p + 1):
+                a = _find(parent, p)
+                b = _find(parent, p + 1)
+                if a < b:
+                    parent[b] = a
+                elif b < a:
+                    parent[a] = b
+            if i + 1 < H and np.isfinite(h[p + W]) and _joined(h, jump, factor, p, p + W):
+                a = _find(parent, p)
+                b = _find(parent, p + W)
+                if a < b:
+                    parent[b] = a
+                elif b < a:
+                    parent[a] = b
+    size = np.zeros(n, np.int64)
+    steps = np.zeros(n, np.int64)
+    open_ = np.zeros(n, np.int64)
+    for p in range(n):
+        if not np.isfinite(h[p]):
+            continue
+        r = _find(parent, p)
+        parent[p] = r
+        size[r] += 1
+    for i in range(H):
+        for j in range(W):
+            p = i * W + j
+            if not np.isfinite(h[p]):
+                continue
+            r = parent[p]
+            for k in range(4):
+                i1 = i + _DR[k]  # right, left, down, up
+                j1 = j + _DC[k]
+                if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
+                    open_[r] += 1
+                    continue
+                q = i1 * W + j1
+                if not np.isfinite(h[q]):
+                    open_[r] += 1
+                elif parent[q] != r:
+                    steps[r] += 1
+    count = 0
+    for p in range(n):
+        r = parent[p]
+        if r != p or not np.isfinite(h[p]):
+            continue
+        if size[r] <= max_px and steps[r] > 0 and steps[r] >= min_step_share * (steps[r] + open_[r]):
+            count += 1
+        else:
+            size[r] = -1  # not a patch
+    for p in range(n):
+        out[p] = np.isfinite(h[p]) and size[parent[p]] > 0
+    return count
+
+
+def cut_off_patches(height_mm: np.ndarray, jump_mm: np.ndarray, *, max_px: float, factor: float = PATCH_JUMP_FACTOR,
+                    min_step_share: float = PATCH_MIN_STEP_SHARE) -> np.ndarray:
+    """The pixels of the patches cut off by depth steps (module docstring).
+
+    Parameters
+    ----------
+    height_mm : (H, W) float ndarray
+        Heights (mm; NaN = not measured, or not context: those pixels bound a patch as unmeasured ones do).
+    jump_mm : (H, W) float ndarray
+        The depth step at each pixel (mm): neighbours differing by more than ``factor`` × the smaller of
+        theirs are cut apart.
+    max_px : float
+        The largest patch (pixels; :func:`zcut.suspects.suspects` gives :data:`PATCH_RHO` · a_max).
+    factor, min_step_share : float
+        :data:`PATCH_JUMP_FACTOR`, :data:`PATCH_MIN_STEP_SHARE`.
+
+    Returns
+    -------
+    (H, W) bool ndarray
+    """
+    h, jump = _check(height_mm, jump_mm)
+    out = np.zeros(h.shape, bool)
+    if h.size:
+        _patch_kernel(h, jump, float(factor), float(max_px), float(min_step_share), out)
+    return out
+
+
+def cut_off_patches_reference(height_mm: np.ndarray, jump_mm: np.ndarray, *, max_px: float,
+                              factor: float = PATCH_JUMP_FACTOR,
+                              min_step_share: float = PATCH_MIN_STEP_SHARE) -> np.ndarray:
+    """:func:`cut_off_patches` with scipy's connected components of the joined neighbour pairs and whole-frame
+    numpy."""
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    h, jump = _check(height_mm, jump_mm)
+    H, W = h.shape
+    m = np.isfinite(h)
+    if h.size == 0:
+        return np.zeros(h.shape, bool)
+    idx = np.arange(H * W).reshape(H, W)
+    i_all, j_all = [], []
+    pairs = (((slice(None), slice(0, W - 1)), (slice(None), slice(1, W))),
+             ((slice(0, H - 1), slice(None)), (slice(1, H), slice(None))))
+    for a, b in pairs:
+        ok = m[a] & m[b]
+        with np.errstate(invalid="ignore"):
+            ok &= np.abs(h[a] - h[b]) <= factor * np.minimum(jump[a], jump[b])
+        i_all.append(idx[a][ok])
+        j_all.append(idx[b][ok])
+    i = np.concatenate(i_all)
+    j = np.concatenate(j_all)
+    graph = coo_matrix((np.ones(i.size, np.int8), (i, j)), shape=(H * W, H * W))
+    _, lab = connected_components(graph, directed=False)
+    lab = lab.reshape(H, W)
+    n = int(lab.max()) + 1
+    size = np.bincount(lab[m], minlength=n)
+    steps = np.zeros(n, np.int64)
+    open_ = np.zeros(n, np.int64)
+    # every side of a measured pixel that leaves its piece: to a measured pixel of another piece (a step), or
+    # to an unmeasured pixel or the image's border (open)
+    padded_m = np.pad(m, 1, constant_values=False)
+    padded_lab = np.pad(lab, 1, constant_values=-1)
+    for dr, dc in ((0, 1), (0, -1), (1, 0), (-1, 0)):
+        nb_m = padded_m[1 + dr:1 + dr + H, 1 + dc:1 + dc + W]
+        nb_lab = padded_lab[1 + dr:1 + dr + H, 1 + dc:1 + dc + W]
+        steps += np.bincount(lab[m & nb_m & (nb_lab != lab)], minlength=n)
+        open_ += np.bincount(lab[m & ~nb_m], minlength=n)
+    patch = ((size <= float(max_px)) & (steps > 0)
+             & (steps >= min_step_share * (steps + open_)) & (size > 0))
+    return m & patch[lab]
