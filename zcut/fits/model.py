@@ -341,7 +341,7 @@ def cube_root(x: float) -> float:
 
     ``np.cbrt`` is a SIMD kernel whose last bit depends on the CPU NumPy dispatches to (on a CPU with AVX-512 it
     differs from the AVX2 and baseline kernels, which are the C library's, for about half of all values:
-    docs/fits.md, "The fits independent of the CPU's dispatch"), and the C library's ``cbrt`` is faithful, not
+    docs/fits.md, "The fits independent of numpy's CPU dispatch"), and the C library's ``cbrt`` is faithful, not
     correctly rounded. The C library's root is moved to the neighbour whose rounding interval holds ``x``: the
     interval's ends are the midpoints to the neighbours, cubed exactly (:class:`fractions.Fraction`); a midpoint's
     cube is never a float64, so there is no tie.
