@@ -9,7 +9,9 @@ point-to-triangle distances of an Open3D ``RaycastingScene`` built once on the m
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from fractions import Fraction
 from typing import Any
 
 import numba
@@ -21,7 +23,7 @@ from zcut.ray_hits import mesh_hit_t
 
 from .kernels import ModelIndex, build_index
 
-__all__ = ["PartModel", "prepare_model"]
+__all__ = ["PartModel", "cube_root", "prepare_model"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -329,8 +331,33 @@ MERGE_DEG = 10.0
 
 
 def _angle_deg(R: np.ndarray) -> float:
-    """The angle of the rotation ``R`` in degrees."""
-    return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
+    """The angle of the rotation ``R`` in degrees (the C library's ``acos``, not NumPy's SIMD kernel: see
+    :func:`cube_root`)."""
+    return math.degrees(math.acos(min(max((float(np.trace(R)) - 1.0) / 2.0, -1.0), 1.0)))
+
+
+def cube_root(x: float) -> float:
+    """The cube root of ``x`` (positive, finite), correctly rounded: the same bits on every CPU and C library.
+
+    ``np.cbrt`` is a SIMD kernel whose last bit depends on the CPU NumPy dispatches to (on a CPU with AVX-512 it
+    differs from the AVX2 and baseline kernels, which are the C library's, for about half of all values:
+    docs/fits.md, "The fits independent of numpy's CPU dispatch"), and the C library's ``cbrt`` is faithful, not
+    correctly rounded. The C library's root is moved to the neighbour whose rounding interval holds ``x``: the
+    interval's ends are the midpoints to the neighbours, cubed exactly (:class:`fractions.Fraction`); a midpoint's
+    cube is never a float64, so there is no tie.
+    """
+    if not (math.isfinite(x) and x > 0.0):
+        raise ParameterError(f"cube_root needs a positive finite number, got {x!r}")
+    r = math.cbrt(x)
+    want = Fraction(x)
+    while True:
+        below, above = math.nextafter(r, 0.0), math.nextafter(r, math.inf)
+        if want < ((Fraction(r) + Fraction(below)) / 2) ** 3:
+            r = below
+        elif want > ((Fraction(r) + Fraction(above)) / 2) ** 3:
+            r = above
+        else:
+            return r
 
 
 def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray, axes: np.ndarray, tree: Any,
@@ -485,7 +512,7 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
         spacing = np.sqrt(4 * np.pi * extent * extent / n_samples)
         sym, cont = _symmetries(samples, v, centroid, axes, tree, tol=max(0.02 * extent, 2 * spacing))
         box = np.ptp(v, axis=0) + 2 * index_margin_mm
-        h = max(float(np.cbrt(np.prod(box) / index_voxels)), extent / 400.0)
+        h = max(cube_root(float(np.prod(box)) / index_voxels), extent / 400.0)
         index = build_index(v, t, _triangle_normals(v, t), seg0, seg1, scene, margin_mm=index_margin_mm, h_mm=h)
     else:
         sym, cont, index = np.eye(3)[None], None, None

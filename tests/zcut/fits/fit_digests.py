@@ -37,8 +37,12 @@ DEFAULTS = {
     ("rods", False): (62, "884b0717a55ce24c"), ("rods", True): (28, "0e4c6b60c2be0bf9"),
     ("black_nuts", False): (283, "39f35a01a616c513"), ("black_nuts", True): (133, "69eaf5c08aa7cde3"),
 }  # nuts and rods re-made in 2026-12-06g (h/mesh): their part models no longer take np.arctan2's AVX-512 last bits
+# not re-made in 2026-12-07a (h/cbrt): the model index's voxel size is now a correctly rounded cube root, not np.cbrt,
+# whose AVX-512 kernel gave these bits and numpy at AVX2 or baseline others; now every numpy dispatch gives these (not
+# yet every OpenBLAS kernel: docs/fits.md, "The fits independent of numpy's CPU dispatch")
 #: ... and of :func:`real_crop` (the hand-made nut model), since the twelfth round's tree
-DEFAULTS_REAL = (147, "97e9547eac12522b")  # re-made in 2026-12-06g (h/mesh): the nut model, as DEFAULTS
+DEFAULTS_REAL = (147, "97e9547eac12522b")  # re-made in 2026-12-06g (h/mesh): the nut model, as DEFAULTS; kept in
+# 2026-12-07a (h/cbrt), as DEFAULTS: the same at every numpy dispatch now
 
 
 def digest(fits: list[PartFit]) -> str:
