@@ -134,8 +134,9 @@ def label_with_truth(store, log: Path, *, annotator: str = "ann"):
 
 def label_groups(store, log: Path, *, coin=None, skip=(3,)) -> list[tuple[int, int]]:
     """The frames of ``log`` but ``skip`` labelled by "alice", a person who takes the review groups of
-    >= 16 px (or, with ``coin`` (a numpy Generator), each group at even odds): per labelled frame,
-    (groups taken, groups listed)."""
+    >= 20 px (or, with ``coin`` (a numpy Generator), each group at even odds): per labelled frame,
+    (groups taken, groups listed). (20, not 16 since the suspects' ``patch`` detector: it lists the spike logs' 16 px
+    groups beside 36 px ones, and a person who took every group would teach a model nothing.)"""
     from annotate.groups import GCOL
     from annotate.payload import parse_bundle, prepare_frame
     from replay.pipeline.session import ReplaySession
@@ -150,7 +151,7 @@ def label_groups(store, log: Path, *, coin=None, skip=(3,)) -> list[tuple[int, i
             header, a = parse_bundle(prepare_frame(frame, r).served.bundle)
             gids, valid = a["groups"].astype(np.int64), a["valid"]
             t = a["group_table"]
-            take = t[:, GCOL["n"]] >= 16 if coin is None else coin.random(len(t)) < 0.5
+            take = t[:, GCOL["n"]] >= 20 if coin is None else coin.random(len(t)) < 0.5
             out = t[take, GCOL["id"]]
             taken.append((int(out.size), int(header["n_groups"])))
             fr = store.add_frame(rec, topic=frame.topic, stamp_ns=frame.stamp_ns, index=frame.index,

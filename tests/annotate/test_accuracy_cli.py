@@ -253,7 +253,7 @@ def test_json_says_which_frames_learned_left_out(tmp_path, capsys):
     log, db = tmp_path / "spikes.mcap", tmp_path / "labels.sqlite"
     truths = write_spike_log(log, frames=4, shape=(120, 160), seed=2)
     with LabelStore(db) as store:
-        # frame 3 stays unlabelled: the model is not trained on it; a person takes the groups of >= 16 px
+        # frame 3 stays unlabelled: the model is not trained on it; a person takes the groups of >= 20 px
         taken = label_groups(store, log, skip=(3,))
     assert len(taken) == 3 and all(0 < n < listed for n, listed in taken)
     assert main(["labels", "train", str(log), "--db", str(db)]) == 0
