@@ -41,6 +41,11 @@ PACKING = 0.5
 #: simulation step (s) and the longest simulated time (s)
 TIME_STEP_S = 0.004
 MAX_SIM_S = 1.5
+#: a pile whose simulation went unstable (MuJoCo met NaN, Inf or a huge value in the parts' positions, velocities or
+#: accelerations, warned "The simulation is unstable" and reset them to their start) is simulated again from the same
+#: start with the time step divided by each of these in turn, until a simulation is stable; unstable at every one:
+#: :class:`UnstablePile` (docs/raytraced.md, the section of the round of 2026-12-07a)
+STEP_DIVISORS = (1, 2, 4)
 #: the pile rests when no part moves faster than this (m/s)
 REST_SPEED_M_S = 0.02
 #: a pile against the walls (``walls``): gravity tilted by this angle towards them for
@@ -49,6 +54,35 @@ REST_SPEED_M_S = 0.02
 #: only on a slope steeper than atan(0.4) = 21.8°, so 15° would move the balls alone.
 WALL_TILT_DEG = 30.0
 WALL_TILT_S = 0.8
+
+
+@dataclass(frozen=True, slots=True)
+class UnstableRun:
+    """A simulation of a pile that went unstable and was thrown away (:data:`STEP_DIVISORS`).
+
+    Attributes
+    ----------
+    time_step_s : float
+        Its time step (s).
+    at_s : float
+        Simulated time (s) when MuJoCo first found the state unstable (the run stopped there).
+    warning : str
+        MuJoCo's warning then, its own words ("Nan, Inf or huge value in QACC at DOF 442. The simulation is
+        unstable. Time = 1.4800.").
+    """
+
+    time_step_s: float
+    at_s: float
+    warning: str
+
+
+class UnstablePile(ParameterError):
+    """The pile's simulation went unstable at every time step of :data:`STEP_DIVISORS` (one line; :attr:`runs`
+    the simulations thrown away)."""
+
+    def __init__(self, message: str, runs: tuple[UnstableRun, ...]) -> None:
+        super().__init__(message)
+        self.runs = runs
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,9 +104,14 @@ class Pile:
     escaped : int
         Parts that left the bin (fell over a wall); they are removed from ``R`` and ``t_mm``.
     warnings : tuple of str
-        What MuJoCo warned of while the pile settled (e.g. "the simulation is unstable"), in order;
-        kept here instead of the ``MUJOCO_LOG.TXT`` MuJoCo would otherwise write into the working
+        What MuJoCo warned of while the pile settled (the simulation kept: never that it is unstable), in
+        order; kept here instead of the ``MUJOCO_LOG.TXT`` MuJoCo would otherwise write into the working
         directory (:func:`mujoco_warnings`).
+    time_step_s : float
+        The time step (s) of the simulation kept: :data:`TIME_STEP_S`, or a divided one when ``unstable``.
+    unstable : tuple of UnstableRun
+        The simulations of the same start thrown away because they went unstable, in order (empty: the
+        first one was stable and is the one kept).
     """
 
     kind: str
@@ -82,6 +121,8 @@ class Pile:
     rested: bool
     escaped: int
     warnings: tuple[str, ...] = ()
+    time_step_s: float = TIME_STEP_S
+    unstable: tuple[UnstableRun, ...] = ()
 
     def __len__(self) -> int:
         return int(self.t_mm.shape[0])
@@ -194,13 +235,18 @@ def drop_parts(
     parts slide and roll there; then it turns vertical and the pile settles as it is (the walls
     hold it; friction keeps it heaped), for up to ``max_sim_s`` more.
 
+    A simulation that goes unstable (MuJoCo resets the parts to their start and warns "The simulation is
+    unstable") is thrown away and the same start simulated again with a smaller time step
+    (:data:`STEP_DIVISORS`); the pile says so (``Pile.unstable``, ``Pile.time_step_s``). A pile whose first
+    simulation is stable is that simulation's, as before the retries existed.
+
     Raises
     ------
     ParameterError
         ``kind`` unknown, ``count`` < 1, or the part does not fit the bin's floor.
+    UnstablePile
+        (a ParameterError) The simulation went unstable at every time step tried.
     """
-    import mujoco
-
     if kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
     if int(count) != count or count < 1:
@@ -230,35 +276,19 @@ def drop_parts(
         f'<freejoint/>{body}</body>'
         for p, q in zip(start.tolist(), quat.tolist())
     )
-    xml = (
-        f'<mujoco><option timestep="{TIME_STEP_S}" gravity="0 0 -9.81" solver="PGS" jacobian="sparse" iterations="30"/>'
-        '<default><geom friction="0.4 0.005 0.0001" density="7800" condim="3"/></default>'
-        f'<worldbody>{_bin_geoms(geometry)}{bodies}</worldbody></mujoco>'
-    )
-    model = mujoco.MjModel.from_xml_string(xml)
-    data = mujoco.MjData(model)
-    data.qvel.reshape(n, 6)[:, :3] = vel
-    steps = int(round(max_sim_s / TIME_STEP_S))
-    tilted = 0
-    if walls:
-        gu, gv = tilt_vector(tuple(walls), WALL_TILT_DEG)
-        cos_t = float(np.cos(np.radians(WALL_TILT_DEG)))
-        model.opt.gravity[:] = (9.81 * cos_t * gu, 9.81 * cos_t * gv, -9.81 * cos_t)
-        tilted = int(round(WALL_TILT_S / TIME_STEP_S))
-        steps += tilted
-    check = max(1, int(round(0.05 / TIME_STEP_S)))
-    rested = False
-    i = 0
-    with mujoco_warnings() as warned:
-        for i in range(1, steps + 1):
-            if i == tilted + 1 and tilted:
-                model.opt.gravity[:] = (0.0, 0.0, -9.81)
-            mujoco.mj_step(model, data)
-            if i % check == 0 and (i - tilted) * TIME_STEP_S > 0.3:
-                if float(np.abs(data.qvel.reshape(n, 6)[:, :3]).max()) < REST_SPEED_M_S:
-                    rested = True
-                    break
-    qpos = data.qpos.reshape(n, 7).copy()
+    world = f'<worldbody>{_bin_geoms(geometry)}{bodies}</worldbody>'
+    thrown: list[UnstableRun] = []
+    for divisor in STEP_DIVISORS:  # the first stable simulation of the same start is the pile's
+        dt = TIME_STEP_S / divisor
+        run = _settle(world, n, vel, time_step_s=dt, max_sim_s=max_sim_s, walls=walls)
+        if run.unstable is None:
+            break
+        thrown.append(run.unstable)
+    else:
+        steps_ms = ", ".join(f"{r.time_step_s * 1000:g}" for r in thrown)
+        raise UnstablePile(f"the pile's simulation ({n} {kind}) went unstable at every time step tried ({steps_ms} ms; "
+                           f"MuJoCo: {thrown[-1].warning.rstrip('.')}); try another seed", tuple(thrown))
+    qpos = run.qpos
     p_bin = qpos[:, :3] * 1000.0
     R_bin = _quat_to_R(qpos[:, 3:])
     inside = ((np.abs(p_bin[:, 0]) < fx + 10 * geometry.draft_deg) & (np.abs(p_bin[:, 1]) < fy + 10 * geometry.draft_deg)
@@ -268,4 +298,63 @@ def drop_parts(
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     t_world = p_bin[inside] @ Rz.T + np.array([pose.x_mm, pose.y_mm, 0.0])
     R_world = np.einsum("ij,njk->nik", Rz, R_bin[inside])
-    return Pile(kind, R_world, t_world, i * TIME_STEP_S, rested, int((~inside).sum()), tuple(warned))
+    return Pile(kind, R_world, t_world, run.sim_s, run.rested, int((~inside).sum()), run.warnings, dt, tuple(thrown))
+
+
+@dataclass(frozen=True, slots=True)
+class _Run:
+    """One simulation of a pile (:func:`_settle`): the parts' final (n, 7) ``qpos`` (bin frame, m; w, x, y, z),
+    the simulated time, whether it rested, MuJoCo's warnings, and what made it unstable (None: stable)."""
+
+    qpos: np.ndarray
+    sim_s: float
+    rested: bool
+    warnings: tuple[str, ...]
+    unstable: UnstableRun | None
+
+
+#: MuJoCo's warnings of an unstable simulation (it resets the state when it raises one)
+_UNSTABLE = ("mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC")
+
+
+def _settle(world: str, n: int, vel: np.ndarray, *, time_step_s: float, max_sim_s: float,
+            walls: tuple[str, ...]) -> _Run:
+    """Simulate the ``n`` parts of the MJCF ``world`` from rest but their sideways velocities ``vel`` (m/s) with
+    ``time_step_s`` until they rest or ``max_sim_s`` (after the tilt, with ``walls``); stops at the first step
+    after which MuJoCo counts a warning of an unstable state (:data:`_UNSTABLE`)."""
+    import mujoco
+
+    xml = (
+        f'<mujoco><option timestep="{time_step_s}" gravity="0 0 -9.81" solver="PGS" jacobian="sparse" iterations="30"/>'
+        '<default><geom friction="0.4 0.005 0.0001" density="7800" condim="3"/></default>'
+        f'{world}</mujoco>'
+    )
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    data.qvel.reshape(n, 6)[:, :3] = vel
+    steps = int(round(max_sim_s / time_step_s))
+    tilted = 0
+    if walls:
+        gu, gv = tilt_vector(tuple(walls), WALL_TILT_DEG)
+        cos_t = float(np.cos(np.radians(WALL_TILT_DEG)))
+        model.opt.gravity[:] = (9.81 * cos_t * gu, 9.81 * cos_t * gv, -9.81 * cos_t)
+        tilted = int(round(WALL_TILT_S / time_step_s))
+        steps += tilted
+    check = max(1, int(round(0.05 / time_step_s)))
+    bad = [int(getattr(mujoco.mjtWarning, w)) for w in _UNSTABLE]
+    rested = False
+    unstable = None
+    i = 0
+    with mujoco_warnings() as warned:
+        for i in range(1, steps + 1):
+            if i == tilted + 1 and tilted:
+                model.opt.gravity[:] = (0.0, 0.0, -9.81)
+            mujoco.mj_step(model, data)
+            if any(data.warning[w].number for w in bad):  # reset to the start by MuJoCo: thrown away
+                unstable = UnstableRun(time_step_s, i * time_step_s, warned[-1] if warned else "unstable")
+                break
+            if i % check == 0 and (i - tilted) * time_step_s > 0.3:
+                if float(np.abs(data.qvel.reshape(n, 6)[:, :3]).max()) < REST_SPEED_M_S:
+                    rested = True
+                    break
+    return _Run(data.qpos.reshape(n, 7).copy(), i * time_step_s, rested, tuple(warned), unstable)
