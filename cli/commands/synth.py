@@ -152,15 +152,15 @@ def _mujoco(text: str) -> str:
 
 def pile_lines(i: int, pile: Pile) -> list[str]:
     """What ``zcut synth --sensor raytraced`` says of frame ``i``'s (0-based) pile on stderr: the simulations thrown
-    away as unstable and the time step that settled it (:data:`replay.synth.raytrace.pile.STEP_DIVISORS`), and
-    MuJoCo's warnings of the simulation kept (its own words, not its ``MUJOCO_LOG.TXT`` in the working directory)."""
+    away as unstable and what settled it (:data:`replay.synth.raytrace.pile.RETRIES`), and MuJoCo's warnings of the
+    simulation kept (its own words, not its ``MUJOCO_LOG.TXT`` in the working directory)."""
     out = []
     if pile.unstable:
         first = pile.unstable[0]
-        steps = " and ".join(f"{r.time_step_s * 1000:g}" for r in pile.unstable)
-        out.append(f"zcut: frame {i + 1}: the pile's simulation went unstable at a time step of {steps} ms (MuJoCo: "
-                   f"{_mujoco(first.warning)}); simulated again at {pile.time_step_s * 1000:g} ms: stable, "
-                   f"{len(pile)} part(s) in the bin, {pile.escaped} fell out")
+        more = f" (and {len(pile.unstable) - 1} retry(ies) after it)" if len(pile.unstable) > 1 else ""
+        out.append(f"zcut: frame {i + 1}: the pile's simulation went unstable (MuJoCo: {_mujoco(first.warning)}){more}; "
+                   f"simulated again with a {pile.floor_thickness_mm:g} mm floor at a {pile.time_step_s * 1000:g} ms "
+                   f"step: stable, {len(pile)} part(s) in the bin, {pile.escaped} fell out")
     if pile.warnings:
         more = f" (and {len(pile.warnings) - 1} more)" if len(pile.warnings) > 1 else ""
         out.append(f"zcut: frame {i + 1}: the pile's simulation warned: {_mujoco(pile.warnings[0])}{more}; "

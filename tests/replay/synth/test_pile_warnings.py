@@ -35,7 +35,7 @@ def test_an_unstable_pile_says_so_in_the_pile_and_on_stderr_and_writes_no_file(t
                  "--size", "160x100", "-o", "rods.mcap"]) == 0
     err = capsys.readouterr().err
     line = next(x for x in err.splitlines() if "the pile's simulation went unstable" in x)
-    assert line.startswith("zcut: frame 1: ") and "The simulation is unstable" in line and "simulated again at" in line
+    assert line.startswith("zcut: frame 1: ") and "The simulation is unstable" in line and "simulated again with" in line
     assert ".)" not in line and ".;" not in line
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rods.mcap"]
 
