@@ -9,7 +9,9 @@ table plane — and the pixels farther than k × Err from all of them) on every 
 prepared, in log order, the frame the page asks for first. The method's sliver pass is part of it (the part posed on
 the unexplained regions no fit took, :mod:`zcut.sliver_fits`), so the page's proposals are the method's outliers
 there too. The page is usable meanwhile: a frame not fitted yet is
-answered with its status (``waiting``, ``fitting``), never by holding a worker.
+answered with its status (``waiting``, ``fitting``), never by holding a worker. Closing the page
+(:meth:`Fitter.stop`) ends a fit under way at its next stop point (:mod:`zcut.cancel`: between the fits' regions
+and candidates): that frame stays unfitted, no frame's fits are partial.
 
 What a frame's fits give the page (:meth:`FrameFits.bundle`, a bundle of :mod:`annotate.payload`):
 
@@ -53,6 +55,8 @@ import numpy as np
 from scipy import ndimage
 
 from annotate.payload import EIGHT, _cluster_stats, _small_uint, make_bundle
+from zcut.cancel import stop_when
+from zcut.errors import Cancelled
 
 if TYPE_CHECKING:
     from replay.logs.frame import Frame
@@ -90,6 +94,9 @@ REACH_MM = 30.0
 SEEDED_KEPT = 64
 #: At most this many of the part model's surface samples go to the page's 3D view.
 MODEL_POINTS = 400
+#: (s) :meth:`Fitter.stop` waits at most this long for the fitting thread to end: a fit under way stops at its
+#: next stop point (:mod:`zcut.cancel`), a step between two of them that outlasts this is not waited for
+STOP_WAIT_S = 5.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -520,17 +527,27 @@ class Fitter:
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        #: the frames whose fit :meth:`stop` ended part-way (they are waiting again, unfitted)
+        self.cancelled: list[int] = []
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="zcut-annotate-fits", daemon=True)
         self._thread.start()
 
     def stop(self) -> None:
+        """Stop fitting: a fit under way stops at its next stop point (:mod:`zcut.cancel`: between the fits'
+        regions and candidates) and its frame stays unfitted; returns when the thread has ended (or after
+        :data:`STOP_WAIT_S`: the thread is a daemon, a step longer than that is not waited for)."""
         self._stop.set()
         with self._cond:
             self._cond.notify_all()
-        if self._thread is not None:  # a fit under way is not interrupted: a daemon thread, not waited for long
-            self._thread.join(timeout=5)
+        if self._thread is not None:
+            self._thread.join(timeout=STOP_WAIT_S)
+
+    @property
+    def stopped(self) -> bool:
+        """Whether :meth:`stop` was called and the fitting thread has ended (or never started)."""
+        return self._stop.is_set() and (self._thread is None or not self._thread.is_alive())
 
     def submit(self, frame: Frame, result: FrameResult) -> None:
         """Queue a prepared frame (its points are read from ``points`` when its turn comes)."""
@@ -576,7 +593,15 @@ class Fitter:
             i, (light, work) = job
             try:
                 frame = dataclasses.replace(light, xyz=self.points(i))
-                got = fit_frame(frame, work, self.config, self.bin_model)
+                with stop_when(self._stop.is_set):  # stop() ends a fit under way (zcut.cancel)
+                    got = fit_frame(frame, work, self.config, self.bin_model)
+            except Cancelled:  # stopped: the frame is not fitted (it waits again), no result is kept
+                with self._cond:
+                    self._pending[i] = (light, work)
+                    self.cancelled.append(i)
+                    self._running = None
+                    self._cond.notify_all()
+                return
             except Exception as e:  # noqa: BLE001 - shown on the page for this frame; the others go on
                 H, W = np.shape(work.valid)
                 got = FrameFits(i, "error", f"the fits failed: {type(e).__name__}: {e}", (H, W))

@@ -15,6 +15,11 @@ class ParameterError(ZcutError, ValueError):
     """A scalar parameter is out of range; the message names the argument and the value."""
 
 
+class Cancelled(ZcutError):
+    """The caller asked a long computation to stop (:func:`zcut.cancel.stop_when`) and it stopped part-way:
+    there is no result, not a partial one."""
+
+
 def describe_array(a: object) -> str:
     """Return ``"shape (H, W) float32"`` style text for messages."""
     shape = getattr(a, "shape", None)

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from replay.synth import SynthFrame
     from replay.synth.log import ProgressFn
+    from replay.synth.raytrace.pile import Pile
     from replay.synth.raytrace.synthesize import RaytracedFrame
 
 PART_KIND_NAMES = ("spheres", "zinc_nuts", "rods", "black_screws", "black_nuts", "sprockets")
@@ -144,6 +145,29 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _mujoco(text: str) -> str:
+    """MuJoCo's warning as a clause of our line: its own words without its closing full stop."""
+    return text.rstrip().removesuffix(".")
+
+
+def pile_lines(i: int, pile: Pile) -> list[str]:
+    """What ``zcut synth --sensor raytraced`` says of frame ``i``'s (0-based) pile on stderr: the simulations thrown
+    away as unstable and what settled it (:data:`replay.synth.raytrace.pile.RETRIES`), and MuJoCo's warnings of the
+    simulation kept (its own words, not its ``MUJOCO_LOG.TXT`` in the working directory)."""
+    out = []
+    if pile.unstable:
+        first = pile.unstable[0]
+        more = f" (and {len(pile.unstable) - 1} retry(ies) after it)" if len(pile.unstable) > 1 else ""
+        out.append(f"zcut: frame {i + 1}: the pile's simulation went unstable (MuJoCo: {_mujoco(first.warning)}){more}; "
+                   f"simulated again with a {pile.floor_thickness_mm:g} mm floor at a {pile.time_step_s * 1000:g} ms "
+                   f"step: stable, {len(pile)} part(s) in the bin, {pile.escaped} fell out")
+    if pile.warnings:
+        more = f" (and {len(pile.warnings) - 1} more)" if len(pile.warnings) > 1 else ""
+        out.append(f"zcut: frame {i + 1}: the pile's simulation warned: {_mujoco(pile.warnings[0])}{more}; "
+                   f"{pile.escaped} part(s) fell out of the bin")
+    return out
+
+
 def _run_raytraced(args: argparse.Namespace, what: str, progress: ProgressFn) -> int:
     """``--sensor raytraced``: the same log layout from the ray-traced sensor."""
     from replay.outputs import AtomicOutput
@@ -161,10 +185,9 @@ def _run_raytraced(args: argparse.Namespace, what: str, progress: ProgressFn) ->
         n_valid = int(np.isfinite(rf.frame.xyz[..., 2]).sum())
         print(f"frame {i + 1}/{n}: {what} {w}x{h} (ray-traced), {n_parts} parts, {n_valid} valid points, "
               f"{int(rf.truth.sum())} true outliers, {seconds:.1f} s", file=sys.stderr, flush=True)
-        if rf.pile is not None and rf.pile.warnings:  # MuJoCo's own words, not its MUJOCO_LOG.TXT in the cwd
-            print(f"zcut: frame {i + 1}: the pile's simulation warned: {rf.pile.warnings[0]}"
-                  + (f" (and {len(rf.pile.warnings) - 1} more)" if len(rf.pile.warnings) > 1 else "")
-                  + f"; {rf.pile.escaped} part(s) fell out of the bin", file=sys.stderr, flush=True)
+        if rf.pile is not None:
+            for line in pile_lines(i, rf.pile):
+                print(line, file=sys.stderr, flush=True)
 
     import numpy as np
 

@@ -41,6 +41,7 @@ from typing import TypeVar
 
 import numpy as np
 
+from zcut.cancel import stop_point
 from zcut.errors import InputShapeError, describe_array
 from zcut.fit_vetting import pose_overlaps
 
@@ -507,7 +508,8 @@ FINE_KEEP = 1.1
 def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intrinsics: Intrinsics | None = None,
                  params: FitParams | None = None) -> list[PartFit]:
     """:func:`fit_parts` with the part model already prepared (:func:`zcut.fits.model.prepare_model`),
-    for many frames of one part."""
+    for many frames of one part. Inside a :func:`zcut.cancel.stop_when` scope it raises
+    :class:`zcut.errors.Cancelled` between regions and candidates once the scope's check says stop."""
     params = FitParams() if params is None else params
     xyz = np.asarray(xyz_mm)
     z = np.asarray(zone)
@@ -535,6 +537,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
     pending = segment(xyz, np.flatnonzero(zv), f_px=f, jump_mm=params.jump_mm, jump_px=params.jump_px,
                       min_px=params.min_region_px)
     for region in pending:
+        stop_point()  # a caller's stop (zcut.cancel) is seen between regions and candidates
         pending.extend(_fit_region(frame, region, model, params, accepted, known, explained, shifts=0,
                                    claims=claims))
     held: list[tuple[tuple[np.ndarray, float, float], tuple[np.ndarray, np.ndarray]]] = []
@@ -561,6 +564,7 @@ def fit_prepared(xyz_mm: np.ndarray, zone: np.ndarray, model: PartModel, *, intr
         seed_params = replace(params, max_err_mm=min(params.max_err_mm, params.seed_err_ratio * noise),
                               min_support=params.seed_min_support)
         for piece in seeds:
+            stop_point()
             todo = _unclaimed(piece, claims, SEED_MIN_PX)
             if todo is None:
                 continue
@@ -718,6 +722,7 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
     attempts = 0
     tried: np.ndarray | None = None  # seeds of patches already fitted in this region (made when first needed)
     while len(left) >= min_px and attempts < params.max_instances_per_region:
+        stop_point()
         progress = False
         many = model.sphere_radius is None and _holds_many(frame, left, model)
         if many:
@@ -733,6 +738,7 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             if claims is not None and len(cands) > 1:
                 cands = _ranked(frame, left, model, params, cands)
         for T, err in cands:
+            stop_point()
             attempts += 1
             fit = _accept(frame, left, model, params, T, err, min_px, claims)
             if fit is None:
@@ -972,6 +978,8 @@ def fit_parts(xyz_mm: np.ndarray, zone: np.ndarray, vertices_mm: np.ndarray, tri
         The mesh is degenerate (one line).
     zcut.errors.InputShapeError
         An array has the wrong shape or dtype.
+    zcut.errors.Cancelled
+        Inside a :func:`zcut.cancel.stop_when` scope whose check said stop (no fits: none is partial).
     """
     params = FitParams() if params is None else params
     model = prepare_model(vertices_mm, triangles, sphere_tolerance=params.sphere_tolerance)

@@ -17,6 +17,7 @@ frame of :mod:`replay.synth.scene` (z up, the table top at z = 0).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -41,6 +42,15 @@ PACKING = 0.5
 #: simulation step (s) and the longest simulated time (s)
 TIME_STEP_S = 0.004
 MAX_SIM_S = 1.5
+#: (mm) the thickness of the bin floor's collision box under the floor's surface, in the first simulation of a pile
+FLOOR_THICKNESS_MM = 10.0
+#: a pile whose first simulation went unstable (MuJoCo met NaN, Inf or a huge value in the parts' positions, velocities
+#: or accelerations, warned "The simulation is unstable" and reset them to their start) is simulated again from the
+#: same start with each of these in turn, (floor thickness mm, time step divisor), until a simulation is stable: a
+#: floor the parts cannot pass through (a rod falling from the top of its column meets the floor at ~4.5 m/s, 18 mm a
+#: step of 4 ms: it passes through 10 mm and the pile goes unstable), then smaller steps; unstable at every one:
+#: :class:`UnstablePile` (docs/raytraced.md, the section of the round of 2026-12-07a)
+RETRIES = ((100.0, 1), (100.0, 2), (100.0, 4))
 #: the pile rests when no part moves faster than this (m/s)
 REST_SPEED_M_S = 0.02
 #: a pile against the walls (``walls``): gravity tilted by this angle towards them for
@@ -49,6 +59,38 @@ REST_SPEED_M_S = 0.02
 #: only on a slope steeper than atan(0.4) = 21.8°, so 15° would move the balls alone.
 WALL_TILT_DEG = 30.0
 WALL_TILT_S = 0.8
+
+
+@dataclass(frozen=True, slots=True)
+class UnstableRun:
+    """A simulation of a pile that went unstable and was thrown away (:data:`RETRIES`).
+
+    Attributes
+    ----------
+    time_step_s : float
+        Its time step (s).
+    floor_thickness_mm : float
+        The thickness of its bin floor's collision box (mm).
+    at_s : float
+        Simulated time (s) when MuJoCo first found the state unstable (the run stopped there).
+    warning : str
+        MuJoCo's warning then, its own words ("Nan, Inf or huge value in QACC at DOF 442. The simulation is
+        unstable. Time = 1.4800.").
+    """
+
+    time_step_s: float
+    floor_thickness_mm: float
+    at_s: float
+    warning: str
+
+
+class UnstablePile(ParameterError):
+    """The pile's simulation went unstable in every way :data:`RETRIES` tries (one line; :attr:`runs` the
+    simulations thrown away)."""
+
+    def __init__(self, message: str, runs: tuple[UnstableRun, ...]) -> None:
+        super().__init__(message)
+        self.runs = runs
 
 
 @dataclass(frozen=True, slots=True)
@@ -70,9 +112,17 @@ class Pile:
     escaped : int
         Parts that left the bin (fell over a wall); they are removed from ``R`` and ``t_mm``.
     warnings : tuple of str
-        What MuJoCo warned of while the pile settled (e.g. "the simulation is unstable"), in order;
-        kept here instead of the ``MUJOCO_LOG.TXT`` MuJoCo would otherwise write into the working
+        What MuJoCo warned of while the pile settled (the simulation kept: never that it is unstable), in
+        order; kept here instead of the ``MUJOCO_LOG.TXT`` MuJoCo would otherwise write into the working
         directory (:func:`mujoco_warnings`).
+    time_step_s : float
+        The time step (s) of the simulation kept: :data:`TIME_STEP_S`, or a divided one (:data:`RETRIES`).
+    floor_thickness_mm : float
+        The thickness of the bin floor's collision box in the simulation kept (mm): :data:`FLOOR_THICKNESS_MM`, or
+        a retry's (:data:`RETRIES`).
+    unstable : tuple of UnstableRun
+        The simulations of the same start thrown away because they went unstable, in order (empty: the
+        first one was stable and is the one kept).
     """
 
     kind: str
@@ -82,6 +132,9 @@ class Pile:
     rested: bool
     escaped: int
     warnings: tuple[str, ...] = ()
+    time_step_s: float = TIME_STEP_S
+    floor_thickness_mm: float = FLOOR_THICKNESS_MM
+    unstable: tuple[UnstableRun, ...] = ()
 
     def __len__(self) -> int:
         return int(self.t_mm.shape[0])
@@ -127,16 +180,18 @@ def _geoms(kind: str) -> str:
     raise KeyError(kind)
 
 
-def _bin_geoms(geometry: BinGeometry) -> str:
-    """MJCF geoms of the bin in the bin frame (metres): floor and four drafted inner walls."""
+def _bin_geoms(geometry: BinGeometry, floor_thickness_mm: float = FLOOR_THICKNESS_MM) -> str:
+    """MJCF geoms of the bin in the bin frame (metres): floor (a box ``floor_thickness_mm`` thick under the floor's
+    surface) and four drafted inner walls."""
     mm = 0.001
     fx, fy = geometry.floor_half
     d = np.radians(geometry.draft_deg)
     t = 20.0  # wall thickness (mm)
     # the walls rise 1 m, a chute: parts dropped from high up cannot bounce out of the bin
     slant = 1000.0
-    out = [f'<geom type="box" size="{(fx + 50) * mm} {(fy + 50) * mm} {5 * mm}" '
-           f'pos="0 0 {(geometry.floor_mm - 5) * mm}"/>']
+    h = 0.5 * floor_thickness_mm
+    out = [f'<geom type="box" size="{(fx + 50) * mm} {(fy + 50) * mm} {h * mm}" '
+           f'pos="0 0 {(geometry.floor_mm - h) * mm}"/>']
     for axis, half in ((0, fx), (1, fy)):
         for sign in (1.0, -1.0):
             # the wall's inner face passes through the floor edge and leans out by the draft
@@ -194,13 +249,18 @@ def drop_parts(
     parts slide and roll there; then it turns vertical and the pile settles as it is (the walls
     hold it; friction keeps it heaped), for up to ``max_sim_s`` more.
 
+    A simulation that goes unstable (MuJoCo resets the parts to their start and warns "The simulation is
+    unstable") is thrown away and the same start simulated again with a thicker floor, then smaller time steps
+    (:data:`RETRIES`); the pile says so (``Pile.unstable``, ``Pile.floor_thickness_mm``, ``Pile.time_step_s``). A
+    pile whose first simulation is stable is that simulation's, as before the retries existed.
+
     Raises
     ------
     ParameterError
         ``kind`` unknown, ``count`` < 1, or the part does not fit the bin's floor.
+    UnstablePile
+        (a ParameterError) The simulation went unstable at every time step tried.
     """
-    import mujoco
-
     if kind not in PART_KINDS:
         raise ParameterError(f"kind must be one of {', '.join(PART_KINDS)}, got {kind!r}")
     if int(count) != count or count < 1:
@@ -230,35 +290,19 @@ def drop_parts(
         f'<freejoint/>{body}</body>'
         for p, q in zip(start.tolist(), quat.tolist())
     )
-    xml = (
-        f'<mujoco><option timestep="{TIME_STEP_S}" gravity="0 0 -9.81" solver="PGS" jacobian="sparse" iterations="30"/>'
-        '<default><geom friction="0.4 0.005 0.0001" density="7800" condim="3"/></default>'
-        f'<worldbody>{_bin_geoms(geometry)}{bodies}</worldbody></mujoco>'
-    )
-    model = mujoco.MjModel.from_xml_string(xml)
-    data = mujoco.MjData(model)
-    data.qvel.reshape(n, 6)[:, :3] = vel
-    steps = int(round(max_sim_s / TIME_STEP_S))
-    tilted = 0
-    if walls:
-        gu, gv = tilt_vector(tuple(walls), WALL_TILT_DEG)
-        cos_t = float(np.cos(np.radians(WALL_TILT_DEG)))
-        model.opt.gravity[:] = (9.81 * cos_t * gu, 9.81 * cos_t * gv, -9.81 * cos_t)
-        tilted = int(round(WALL_TILT_S / TIME_STEP_S))
-        steps += tilted
-    check = max(1, int(round(0.05 / TIME_STEP_S)))
-    rested = False
-    i = 0
-    with mujoco_warnings() as warned:
-        for i in range(1, steps + 1):
-            if i == tilted + 1 and tilted:
-                model.opt.gravity[:] = (0.0, 0.0, -9.81)
-            mujoco.mj_step(model, data)
-            if i % check == 0 and (i - tilted) * TIME_STEP_S > 0.3:
-                if float(np.abs(data.qvel.reshape(n, 6)[:, :3]).max()) < REST_SPEED_M_S:
-                    rested = True
-                    break
-    qpos = data.qpos.reshape(n, 7).copy()
+    thrown: list[UnstableRun] = []
+    for floor_mm, divisor in ((FLOOR_THICKNESS_MM, 1), *RETRIES):  # the first stable simulation is the pile's
+        dt = TIME_STEP_S / divisor
+        world = f'<worldbody>{_bin_geoms(geometry, floor_mm)}{bodies}</worldbody>'
+        run = _settle(world, n, vel, time_step_s=dt, max_sim_s=max_sim_s, walls=walls)
+        if run.unstable is None:
+            break
+        thrown.append(dataclasses.replace(run.unstable, floor_thickness_mm=floor_mm))
+    else:
+        tried = ", ".join(f"{r.floor_thickness_mm:g} mm floor at {r.time_step_s * 1000:g} ms" for r in thrown)
+        raise UnstablePile(f"the pile's simulation ({n} {kind}) went unstable in every way tried ({tried}; MuJoCo: "
+                           f"{thrown[-1].warning.rstrip('.')}); try another seed", tuple(thrown))
+    qpos = run.qpos
     p_bin = qpos[:, :3] * 1000.0
     R_bin = _quat_to_R(qpos[:, 3:])
     inside = ((np.abs(p_bin[:, 0]) < fx + 10 * geometry.draft_deg) & (np.abs(p_bin[:, 1]) < fy + 10 * geometry.draft_deg)
@@ -268,4 +312,64 @@ def drop_parts(
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     t_world = p_bin[inside] @ Rz.T + np.array([pose.x_mm, pose.y_mm, 0.0])
     R_world = np.einsum("ij,njk->nik", Rz, R_bin[inside])
-    return Pile(kind, R_world, t_world, i * TIME_STEP_S, rested, int((~inside).sum()), tuple(warned))
+    return Pile(kind, R_world, t_world, run.sim_s, run.rested, int((~inside).sum()), run.warnings, dt, floor_mm,
+                tuple(thrown))
+
+
+@dataclass(frozen=True, slots=True)
+class _Run:
+    """One simulation of a pile (:func:`_settle`): the parts' final (n, 7) ``qpos`` (bin frame, m; w, x, y, z),
+    the simulated time, whether it rested, MuJoCo's warnings, and what made it unstable (None: stable)."""
+
+    qpos: np.ndarray
+    sim_s: float
+    rested: bool
+    warnings: tuple[str, ...]
+    unstable: UnstableRun | None
+
+
+#: MuJoCo's warnings of an unstable simulation (it resets the state when it raises one)
+_UNSTABLE = ("mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC")
+
+
+def _settle(world: str, n: int, vel: np.ndarray, *, time_step_s: float, max_sim_s: float,
+            walls: tuple[str, ...]) -> _Run:
+    """Simulate the ``n`` parts of the MJCF ``world`` from rest but their sideways velocities ``vel`` (m/s) with
+    ``time_step_s`` until they rest or ``max_sim_s`` (after the tilt, with ``walls``); stops at the first step
+    after which MuJoCo counts a warning of an unstable state (:data:`_UNSTABLE`)."""
+    import mujoco
+
+    xml = (
+        f'<mujoco><option timestep="{time_step_s}" gravity="0 0 -9.81" solver="PGS" jacobian="sparse" iterations="30"/>'
+        '<default><geom friction="0.4 0.005 0.0001" density="7800" condim="3"/></default>'
+        f'{world}</mujoco>'
+    )
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    data.qvel.reshape(n, 6)[:, :3] = vel
+    steps = int(round(max_sim_s / time_step_s))
+    tilted = 0
+    if walls:
+        gu, gv = tilt_vector(tuple(walls), WALL_TILT_DEG)
+        cos_t = float(np.cos(np.radians(WALL_TILT_DEG)))
+        model.opt.gravity[:] = (9.81 * cos_t * gu, 9.81 * cos_t * gv, -9.81 * cos_t)
+        tilted = int(round(WALL_TILT_S / time_step_s))
+        steps += tilted
+    check = max(1, int(round(0.05 / time_step_s)))
+    bad = [int(getattr(mujoco.mjtWarning, w)) for w in _UNSTABLE]
+    rested = False
+    unstable = None
+    i = 0
+    with mujoco_warnings() as warned:
+        for i in range(1, steps + 1):
+            if i == tilted + 1 and tilted:
+                model.opt.gravity[:] = (0.0, 0.0, -9.81)
+            mujoco.mj_step(model, data)
+            if any(data.warning[w].number for w in bad):  # reset to the start by MuJoCo: thrown away
+                unstable = UnstableRun(time_step_s, float("nan"), i * time_step_s, warned[-1] if warned else "unstable")
+                break
+            if i % check == 0 and (i - tilted) * time_step_s > 0.3:
+                if float(np.abs(data.qvel.reshape(n, 6)[:, :3]).max()) < REST_SPEED_M_S:
+                    rested = True
+                    break
+    return _Run(data.qpos.reshape(n, 7).copy(), i * time_step_s, rested, tuple(warned), unstable)
