@@ -91,3 +91,51 @@ def test_the_lines_of_zcut_synth_for_a_pile_that_lost_parts():
     for pile in (kept_all, still, both, first, alone):
         for text in pile_lines(0, pile):
             assert "\n" not in text and ".;" not in text and ".)" not in text and ". (" not in text
+
+
+def test_a_pile_that_lost_parts_is_simulated_again_and_keeps_them(monkeypatch):
+    """Twelve sprockets (two layers of the column, seed 4's draws): the first simulation loses 3 through the 10 mm
+    floor; the first retry (100 mm floor, 2 ms, contacts of 8 ms) keeps all 12, and the frame's later draws are as
+    without a retry."""
+    from cli.commands.synth import pile_lines
+    from replay.synth.raytrace import pile as P
+    from replay.synth.raytrace.synthesize import FILL_RANGE_MM, raytrace_rng
+
+    pile, n, rng = _drop("sprockets", 4, count=12)
+    (first,) = pile.lossy
+    assert (first.floor_thickness_mm, first.time_step_s, first.contact_time_s) == (
+        P.FLOOR_THICKNESS_MM, P.TIME_STEP_S, P.CONTACT_TIME_S)
+    assert first.lost == first.under_floor > 0 and pile.unstable == ()
+    floor_mm, divisor, contact_s = P.RETRIES[0]
+    assert (pile.floor_thickness_mm, pile.time_step_s, pile.contact_time_s) == (
+        floor_mm, P.TIME_STEP_S / divisor, contact_s)
+    assert len(pile) == n and pile.escaped == pile.under_floor == 0
+    assert np.isfinite(pile.t_mm).all() and (pile.t_mm[:, 2] > BIN.floor_mm).all()
+    fresh = raytrace_rng(4, 0, empty=False)
+    fresh.uniform(*FILL_RANGE_MM)
+    fresh.uniform(-0.02, 0.02, (n, 2)), fresh.standard_normal((n, 4)), fresh.normal(0.0, 0.05, (n, 2))
+    assert rng.bit_generator.state == fresh.bit_generator.state
+    (line,) = pile_lines(0, pile)
+    assert line.startswith(f"zcut: frame 1: the pile's simulation lost {first.lost} of 12 part(s) ({first.lost} under "
+                           "the floor) with a 10 mm floor at a 4 ms step; simulated again with a 100 mm floor at a "
+                           "2 ms step and contacts of 8 ms: stable, 12 part(s) in the bin, 0 fell out")
+
+    # every retry loses as many: the later of the tie is kept, and zcut synth warns
+    monkeypatch.setattr(P, "RETRIES", ((P.FLOOR_THICKNESS_MM, 1, P.CONTACT_TIME_S),))
+    still, _, _ = _drop("sprockets", 4, count=12)
+    assert still.lossy == (first,) and still.escaped == still.under_floor == first.lost
+    assert len(still) == n - first.lost
+    assert pile_lines(0, still)[-1] == (f"zcut: frame 1: warning: the pile lost {first.lost} of its 12 part(s) "
+                                        f"({first.lost} under the floor) in the best of 2 simulations tried; the "
+                                        f"frame holds {n - first.lost}")
+
+
+def test_a_pile_that_keeps_its_parts_is_its_first_simulation(monkeypatch):
+    """Twelve sprockets of seed 1 keep all their parts at once: no retry, the same pile as without any."""
+    from replay.synth.raytrace import pile as P
+
+    pile, n, _ = _drop("sprockets", 1, count=12)
+    assert pile.lossy == pile.unstable == () and len(pile) == n and pile.escaped == 0
+    monkeypatch.setattr(P, "RETRIES", ())
+    alone, _, _ = _drop("sprockets", 1, count=12)
+    assert alone.R.tobytes() == pile.R.tobytes() and alone.t_mm.tobytes() == pile.t_mm.tobytes()
