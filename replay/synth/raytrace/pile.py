@@ -44,9 +44,11 @@ TIME_STEP_S = 0.004
 MAX_SIM_S = 1.5
 #: (mm) the thickness of the bin floor's collision box under the floor's surface, in the first simulation of a pile
 FLOOR_THICKNESS_MM = 10.0
-#: (s) the time constant of the contacts' soft constraint in the first simulation of a pile: MuJoCo's default
-#: (``solref="0.02 1"``, critically damped), not written into the first simulation's MJCF
-CONTACT_TIME_S = 0.02
+#: (s) MuJoCo's default time constant of a contact's soft constraint (``solref="0.02 1"``, critically damped): not
+#: written into the MJCF
+_MUJOCO_CONTACT_TIME_S = 0.02
+#: (s) the time constant of the contacts in the first simulation of a pile: MuJoCo's default
+CONTACT_TIME_S = _MUJOCO_CONTACT_TIME_S
 #: a pile whose first simulation went unstable (MuJoCo met NaN, Inf or a huge value in the parts' positions, velocities
 #: or accelerations, warned "The simulation is unstable" and reset them to their start) or lost parts (under the
 #: floor, through or over a wall: :func:`lost_parts`) is simulated again from the same start with each of these in
@@ -422,7 +424,7 @@ def _settle(world: str, n: int, vel: np.ndarray, *, time_step_s: float, max_sim_
     import mujoco
 
     # MuJoCo's default contacts are not written: the first simulation's MJCF is the one of before the retries
-    solref = "" if contact_time_s == CONTACT_TIME_S else f' solref="{contact_time_s!r} 1"'
+    solref = "" if contact_time_s == _MUJOCO_CONTACT_TIME_S else f' solref="{contact_time_s!r} 1"'
     xml = (
         f'<mujoco><option timestep="{time_step_s}" gravity="0 0 -9.81" solver="PGS" jacobian="sparse" iterations="30"/>'
         f'<default><geom friction="0.4 0.005 0.0001" density="7800" condim="3"{solref}/></default>'
