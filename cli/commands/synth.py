@@ -178,9 +178,9 @@ def pile_lines(i: int, pile: Pile) -> list[str]:
         from replay.synth.raytrace.pile import CONTACT_TIME_S, FLOOR_THICKNESS_MM, TIME_STEP_S
 
         # the first simulation is kept only when every retry lost more parts than it did
-        first = not pile.unstable and (pile.floor_thickness_mm, pile.time_step_s, pile.contact_time_s) == (
+        first_kept = not pile.unstable and (pile.floor_thickness_mm, pile.time_step_s, pile.contact_time_s) == (
             FLOOR_THICKNESS_MM, TIME_STEP_S, CONTACT_TIME_S)
-        kept = "simulated again, the first simulation kept" if first else "simulated again"
+        kept = "simulated again, the first simulation kept" if first_kept else "simulated again"
         stiff = (f" and contacts of {pile.contact_time_s * 1000:g} ms" if pile.contact_time_s != CONTACT_TIME_S
                  else "")
         out.append(f"zcut: frame {i + 1}: the pile's simulation {' and '.join(why)}; {kept} with a "
