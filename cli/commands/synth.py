@@ -150,17 +150,47 @@ def _mujoco(text: str) -> str:
     return text.rstrip().removesuffix(".")
 
 
+def _where(lost: int, under_floor: int) -> str:
+    """Where ``lost`` parts went, ``under_floor`` of them through the floor."""
+    rest = lost - under_floor
+    return ", ".join(x for x in (f"{under_floor} under the floor" if under_floor else "",
+                                 f"{rest} beside or above the bin" if rest else "") if x)
+
+
 def pile_lines(i: int, pile: Pile) -> list[str]:
     """What ``zcut synth --sensor raytraced`` says of frame ``i``'s (0-based) pile on stderr: the simulations thrown
-    away as unstable and what settled it (:data:`replay.synth.raytrace.pile.RETRIES`), and MuJoCo's warnings of the
-    simulation kept (its own words, not its ``MUJOCO_LOG.TXT`` in the working directory)."""
+    away (unstable, or stable but losing parts) and what settled it (:data:`replay.synth.raytrace.pile.RETRIES`), a
+    warning when the pile kept still lost parts, and MuJoCo's warnings of the simulation kept (its own words, not its
+    ``MUJOCO_LOG.TXT`` in the working directory)."""
     out = []
-    if pile.unstable:
-        first = pile.unstable[0]
-        more = f" (and {len(pile.unstable) - 1} retry(ies) after it)" if len(pile.unstable) > 1 else ""
-        out.append(f"zcut: frame {i + 1}: the pile's simulation went unstable (MuJoCo: {_mujoco(first.warning)}){more}; "
-                   f"simulated again with a {pile.floor_thickness_mm:g} mm floor at a {pile.time_step_s * 1000:g} ms "
-                   f"step: stable, {len(pile)} part(s) in the bin, {pile.escaped} fell out")
+    asked = len(pile) + pile.escaped
+    if pile.unstable or pile.lossy:
+        why = []
+        if pile.unstable:
+            first = pile.unstable[0]
+            more = f" (and {len(pile.unstable) - 1} retry(ies) after it)" if len(pile.unstable) > 1 else ""
+            why.append(f"went unstable (MuJoCo: {_mujoco(first.warning)}){more}")
+        if pile.lossy:
+            lossy = pile.lossy[0]
+            more = f" (and {len(pile.lossy) - 1} more simulation(s) that lost parts)" if len(pile.lossy) > 1 else ""
+            why.append(f"lost {lossy.lost} of {asked} part(s) ({_where(lossy.lost, lossy.under_floor)}) with a "
+                       f"{lossy.floor_thickness_mm:g} mm floor at a {lossy.time_step_s * 1000:g} ms step{more}")
+        from replay.synth.raytrace.pile import CONTACT_TIME_S, FLOOR_THICKNESS_MM, TIME_STEP_S
+
+        # the first simulation is kept only when every retry lost more parts than it did
+        first_kept = not pile.unstable and (pile.floor_thickness_mm, pile.time_step_s, pile.contact_time_s) == (
+            FLOOR_THICKNESS_MM, TIME_STEP_S, CONTACT_TIME_S)
+        kept = "simulated again, the first simulation kept" if first_kept else "simulated again"
+        stiff = (f" and contacts of {pile.contact_time_s * 1000:g} ms" if pile.contact_time_s != CONTACT_TIME_S
+                 else "")
+        out.append(f"zcut: frame {i + 1}: the pile's simulation {' and '.join(why)}; {kept} with a "
+                   f"{pile.floor_thickness_mm:g} mm floor at a {pile.time_step_s * 1000:g} ms step{stiff}: stable, "
+                   f"{len(pile)} part(s) in the bin, {pile.escaped} fell out")
+    if pile.escaped:
+        tried = 1 + len(pile.unstable) + len(pile.lossy)
+        best = f"the best of {tried} simulations tried" if tried > 1 else "its simulation"
+        out.append(f"zcut: frame {i + 1}: warning: the pile lost {pile.escaped} of its {asked} part(s) "
+                   f"({_where(pile.escaped, pile.under_floor)}) in {best}; the frame holds {len(pile)}")
     if pile.warnings:
         more = f" (and {len(pile.warnings) - 1} more)" if len(pile.warnings) > 1 else ""
         out.append(f"zcut: frame {i + 1}: the pile's simulation warned: {_mujoco(pile.warnings[0])}{more}; "

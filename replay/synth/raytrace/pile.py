@@ -44,13 +44,24 @@ TIME_STEP_S = 0.004
 MAX_SIM_S = 1.5
 #: (mm) the thickness of the bin floor's collision box under the floor's surface, in the first simulation of a pile
 FLOOR_THICKNESS_MM = 10.0
+#: (s) MuJoCo's default time constant of a contact's soft constraint (``solref="0.02 1"``, critically damped): not
+#: written into the MJCF
+_MUJOCO_CONTACT_TIME_S = 0.02
+#: (s) the time constant of the contacts in the first simulation of a pile: MuJoCo's default
+CONTACT_TIME_S = _MUJOCO_CONTACT_TIME_S
 #: a pile whose first simulation went unstable (MuJoCo met NaN, Inf or a huge value in the parts' positions, velocities
-#: or accelerations, warned "The simulation is unstable" and reset them to their start) is simulated again from the
-#: same start with each of these in turn, (floor thickness mm, time step divisor), until a simulation is stable: a
-#: floor the parts cannot pass through (a rod falling from the top of its column meets the floor at ~4.5 m/s, 18 mm a
-#: step of 4 ms: it passes through 10 mm and the pile goes unstable), then smaller steps; unstable at every one:
-#: :class:`UnstablePile` (docs/raytraced.md, the section of the round of 2026-12-07a)
-RETRIES = ((100.0, 1), (100.0, 2), (100.0, 4))
+#: or accelerations, warned "The simulation is unstable" and reset them to their start) or lost parts (under the
+#: floor, through or over a wall: :func:`lost_parts`) is simulated again from the same start with each of these in
+#: turn, (floor thickness mm, time step divisor, contact time constant s), until a simulation is stable and keeps
+#: every part: a floor the parts cannot pass through (a rod falling from the top of its column meets the floor at
+#: ~4.5 m/s, 18 mm a step of 4 ms: it passes through 10 mm), a smaller step and stiffer contacts (at MuJoCo's default
+#: 20 ms the rods of a 1 m column sink into a 100 mm floor and stay there, 1 to 8 a pile, at any step; at 8 ms and
+#: 2 ms they stay on it); unstable at every one: :class:`UnstablePile`; losing parts at every one: the one that lost
+#: the fewest (the later of a tie) is kept and the pile says so (``Pile.escaped``, ``Pile.lossy``). docs/raytraced.md,
+#: the sections of the rounds of 2026-12-07a and 2026-12-07b
+RETRIES = ((100.0, 2, 0.008), (100.0, 4, 0.008), (100.0, 4, 0.004))
+#: (mm) a part whose origin ends deeper than this under the floor's surface went through the floor
+UNDER_FLOOR_MM = 1.0
 #: the pile rests when no part moves faster than this (m/s)
 REST_SPEED_M_S = 0.02
 #: a pile against the walls (``walls``): gravity tilted by this angle towards them for
@@ -76,12 +87,40 @@ class UnstableRun:
     warning : str
         MuJoCo's warning then, its own words ("Nan, Inf or huge value in QACC at DOF 442. The simulation is
         unstable. Time = 1.4800.").
+    contact_time_s : float
+        The time constant of its contacts (s; :data:`CONTACT_TIME_S` or a retry's).
     """
 
     time_step_s: float
     floor_thickness_mm: float
     at_s: float
     warning: str
+    contact_time_s: float = CONTACT_TIME_S
+
+
+@dataclass(frozen=True, slots=True)
+class LossyRun:
+    """A stable simulation of a pile that lost parts and was thrown away for a later one (:data:`RETRIES`).
+
+    Attributes
+    ----------
+    time_step_s : float
+        Its time step (s).
+    floor_thickness_mm : float
+        The thickness of its bin floor's collision box (mm).
+    lost : int
+        Parts it lost (not in the bin when it ended: :func:`lost_parts`).
+    under_floor : int
+        Of those, the parts that ended under the floor (went through it).
+    contact_time_s : float
+        The time constant of its contacts (s; :data:`CONTACT_TIME_S` or a retry's).
+    """
+
+    time_step_s: float
+    floor_thickness_mm: float
+    lost: int
+    under_floor: int
+    contact_time_s: float = CONTACT_TIME_S
 
 
 class UnstablePile(ParameterError):
@@ -110,7 +149,9 @@ class Pile:
     rested : bool
         Whether every part came to rest before :data:`MAX_SIM_S`.
     escaped : int
-        Parts that left the bin (fell over a wall); they are removed from ``R`` and ``t_mm``.
+        Parts lost from the bin in the simulation kept (under its floor, through or over a wall, still above it:
+        :func:`lost_parts`); they are removed from ``R`` and ``t_mm``. Nonzero only when every simulation tried lost
+        some (:data:`RETRIES`).
     warnings : tuple of str
         What MuJoCo warned of while the pile settled (the simulation kept: never that it is unstable), in
         order; kept here instead of the ``MUJOCO_LOG.TXT`` MuJoCo would otherwise write into the working
@@ -123,6 +164,12 @@ class Pile:
     unstable : tuple of UnstableRun
         The simulations of the same start thrown away because they went unstable, in order (empty: the
         first one was stable and is the one kept).
+    lossy : tuple of LossyRun
+        The stable simulations of the same start that lost parts and were not kept, in order.
+    under_floor : int
+        Of ``escaped``, the parts that ended under the floor's surface (went through the floor).
+    contact_time_s : float
+        The time constant of the contacts in the simulation kept (s): :data:`CONTACT_TIME_S`, or a retry's.
     """
 
     kind: str
@@ -135,6 +182,9 @@ class Pile:
     time_step_s: float = TIME_STEP_S
     floor_thickness_mm: float = FLOOR_THICKNESS_MM
     unstable: tuple[UnstableRun, ...] = ()
+    lossy: tuple[LossyRun, ...] = ()
+    under_floor: int = 0
+    contact_time_s: float = CONTACT_TIME_S
 
     def __len__(self) -> int:
         return int(self.t_mm.shape[0])
@@ -160,6 +210,26 @@ def part_count(kind: str, fill_mm: float, geometry: BinGeometry = BIN) -> int:
     """How many parts of ``kind`` fill the bin's floor to ``fill_mm`` on average (at :data:`PACKING`)."""
     fx, fy = geometry.floor_half
     return max(1, int(round(fill_mm * 4.0 * fx * fy * PACKING / PART_VOLUME_MM3[kind])))
+
+
+def lost_parts(p_bin_mm: np.ndarray, *, radius_mm: float, geometry: BinGeometry = BIN) -> tuple[np.ndarray, int]:
+    """Which parts a settled pile lost: their origins ``p_bin_mm`` ((n, 3) float, bin frame, mm) under the floor (deeper
+    than :data:`UNDER_FLOOR_MM`), beside the bin (through or over a wall: farther out than the floor's half size plus
+    10 mm a degree of draft) or above it (higher than the rim by 3 bounding radii ``radius_mm``).
+
+    Returns
+    -------
+    lost : (n,) bool ndarray
+        The parts the bin does not hold.
+    under_floor : int
+        How many of them are under the floor.
+    """
+    fx, fy = geometry.floor_half
+    margin = 10 * geometry.draft_deg
+    under = p_bin_mm[:, 2] <= geometry.floor_mm - UNDER_FLOOR_MM
+    inside = ((np.abs(p_bin_mm[:, 0]) < fx + margin) & (np.abs(p_bin_mm[:, 1]) < fy + margin) & ~under
+              & (p_bin_mm[:, 2] < geometry.height_mm + 3 * radius_mm))
+    return ~inside, int(under.sum())
 
 
 def _geoms(kind: str) -> str:
@@ -251,8 +321,10 @@ def drop_parts(
 
     A simulation that goes unstable (MuJoCo resets the parts to their start and warns "The simulation is
     unstable") is thrown away and the same start simulated again with a thicker floor, then smaller time steps
-    (:data:`RETRIES`); the pile says so (``Pile.unstable``, ``Pile.floor_thickness_mm``, ``Pile.time_step_s``). A
-    pile whose first simulation is stable is that simulation's, as before the retries existed.
+    (:data:`RETRIES`); the pile says so (``Pile.unstable``, ``Pile.floor_thickness_mm``, ``Pile.time_step_s``). So is
+    a stable simulation that lost parts (:func:`lost_parts`: mostly through the floor), until one keeps them all;
+    when none does, the one that lost the fewest is kept (``Pile.escaped``, ``Pile.under_floor``, ``Pile.lossy``). A
+    pile whose first simulation is stable and keeps every part is that simulation's, as before the retries existed.
 
     Raises
     ------
@@ -291,29 +363,40 @@ def drop_parts(
         for p, q in zip(start.tolist(), quat.tolist())
     )
     thrown: list[UnstableRun] = []
-    for floor_mm, divisor in ((FLOOR_THICKNESS_MM, 1), *RETRIES):  # the first stable simulation is the pile's
+    stable: list[LossyRun] = []
+    kept: tuple[_Run, np.ndarray, int, LossyRun] | None = None
+    for floor_mm, divisor, contact_s in ((FLOOR_THICKNESS_MM, 1, CONTACT_TIME_S), *RETRIES):
+        # the first stable simulation that keeps every part is the pile's
         dt = TIME_STEP_S / divisor
         world = f'<worldbody>{_bin_geoms(geometry, floor_mm)}{bodies}</worldbody>'
-        run = _settle(world, n, vel, time_step_s=dt, max_sim_s=max_sim_s, walls=walls)
-        if run.unstable is None:
+        run = _settle(world, n, vel, time_step_s=dt, max_sim_s=max_sim_s, walls=walls, contact_time_s=contact_s)
+        if run.unstable is not None:
+            thrown.append(dataclasses.replace(run.unstable, floor_thickness_mm=floor_mm, contact_time_s=contact_s))
+            continue
+        lost, under = lost_parts(run.qpos[:, :3] * 1000.0, radius_mm=r, geometry=geometry)
+        record = LossyRun(dt, floor_mm, int(lost.sum()), under, contact_s)
+        stable.append(record)
+        if kept is None or record.lost <= kept[3].lost:  # the later of a tie: a thicker floor, a smaller step
+            kept = (run, lost, under, record)
+        if record.lost == 0:
             break
-        thrown.append(dataclasses.replace(run.unstable, floor_thickness_mm=floor_mm))
-    else:
+    if kept is None:
         tried = ", ".join(f"{r.floor_thickness_mm:g} mm floor at {r.time_step_s * 1000:g} ms" for r in thrown)
         raise UnstablePile(f"the pile's simulation ({n} {kind}) went unstable in every way tried ({tried}; MuJoCo: "
                            f"{thrown[-1].warning.rstrip('.')}); try another seed", tuple(thrown))
+    run, lost, under, record = kept
     qpos = run.qpos
     p_bin = qpos[:, :3] * 1000.0
     R_bin = _quat_to_R(qpos[:, 3:])
-    inside = ((np.abs(p_bin[:, 0]) < fx + 10 * geometry.draft_deg) & (np.abs(p_bin[:, 1]) < fy + 10 * geometry.draft_deg)
-              & (p_bin[:, 2] > geometry.floor_mm - 1.0) & (p_bin[:, 2] < geometry.height_mm + 3 * r))
+    inside = ~lost
     # bin frame -> world: yaw about z, then the bin's offset
     c, s = np.cos(pose.yaw_rad), np.sin(pose.yaw_rad)
     Rz = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
     t_world = p_bin[inside] @ Rz.T + np.array([pose.x_mm, pose.y_mm, 0.0])
     R_world = np.einsum("ij,njk->nik", Rz, R_bin[inside])
-    return Pile(kind, R_world, t_world, run.sim_s, run.rested, int((~inside).sum()), run.warnings, dt, floor_mm,
-                tuple(thrown))
+    return Pile(kind, R_world, t_world, run.sim_s, run.rested, record.lost, run.warnings, record.time_step_s,
+                record.floor_thickness_mm, tuple(thrown), tuple(x for x in stable if x is not record), under,
+                record.contact_time_s)
 
 
 @dataclass(frozen=True, slots=True)
@@ -333,15 +416,18 @@ _UNSTABLE = ("mjWARN_BADQPOS", "mjWARN_BADQVEL", "mjWARN_BADQACC")
 
 
 def _settle(world: str, n: int, vel: np.ndarray, *, time_step_s: float, max_sim_s: float,
-            walls: tuple[str, ...]) -> _Run:
+            walls: tuple[str, ...], contact_time_s: float = CONTACT_TIME_S) -> _Run:
     """Simulate the ``n`` parts of the MJCF ``world`` from rest but their sideways velocities ``vel`` (m/s) with
-    ``time_step_s`` until they rest or ``max_sim_s`` (after the tilt, with ``walls``); stops at the first step
-    after which MuJoCo counts a warning of an unstable state (:data:`_UNSTABLE`)."""
+    ``time_step_s`` and contacts of time constant ``contact_time_s`` until they rest or ``max_sim_s`` (after the
+    tilt, with ``walls``); stops at the first step after which MuJoCo counts a warning of an unstable state
+    (:data:`_UNSTABLE`)."""
     import mujoco
 
+    # MuJoCo's default contacts are not written: the first simulation's MJCF is the one of before the retries
+    solref = "" if contact_time_s == _MUJOCO_CONTACT_TIME_S else f' solref="{contact_time_s!r} 1"'
     xml = (
         f'<mujoco><option timestep="{time_step_s}" gravity="0 0 -9.81" solver="PGS" jacobian="sparse" iterations="30"/>'
-        '<default><geom friction="0.4 0.005 0.0001" density="7800" condim="3"/></default>'
+        f'<default><geom friction="0.4 0.005 0.0001" density="7800" condim="3"{solref}/></default>'
         f'{world}</mujoco>'
     )
     model = mujoco.MjModel.from_xml_string(xml)
