@@ -122,12 +122,14 @@ class OutputLock:
         Where the lock lives (default :func:`lock_path_for` ``(output)``).
     """
 
+    _fd: int | None = None  # on the class: ``__del__`` of an object a signal cut off in ``__init__`` reads it
+
     def __init__(self, output: str | os.PathLike[str], *, what: str = "the output",
                  lock_file: str | os.PathLike[str] | None = None) -> None:
         self.output = Path(output)
         self.what = what
         self.lock_file = lock_path_for(output) if lock_file is None else Path(lock_file)
-        self._fd: int | None = None
+        self._fd = None
 
     @property
     def held(self) -> bool:
@@ -426,10 +428,14 @@ class AtomicOutput:
         The final path (checked by an :class:`OutputPlan`).
     """
 
+    # on the class, not only the instance: a signal can raise before ``__init__`` sets it, and ``__del__`` of that
+    # half-made object then reads this (a batch's worker printed an AttributeError after "interrupted (SIGTERM)")
+    _fd: int | None = None
+
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         self.done = False
-        self._fd: int | None = None
+        self._fd = None
         try:
             # a signal waits for the temporary and its lock to be whole: one that cut in after the file was
             # made left it, and its lock held by this process's open descriptor, so that no clean-up of

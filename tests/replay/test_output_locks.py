@@ -4,6 +4,7 @@ over by the next run; ``--rrd r.rrd --out r.mcap`` share one config beside them.
 
 from __future__ import annotations
 
+import gc
 import os
 import signal
 import subprocess
@@ -205,3 +206,26 @@ def test_rrd_and_results_of_one_stem_share_one_config(files, tmp_path, capsys):
     rc, _, err = run_cli(capsys, "replay", files["log"], "--rrd", tmp_path / "b" / "r.rrd", "--out",
                          tmp_path / "r.mcap", "--force")
     assert rc == 0 and (tmp_path / "b" / "r.config.toml").is_file(), err
+
+
+def test_a_writer_cut_off_before_its_descriptor_is_deleted_quietly(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A signal raising inside ``AtomicOutput.__init__`` before the descriptor's attribute exists (a batch's
+    worker at SIGTERM): the half-made object's ``__del__`` says nothing (it printed an AttributeError after
+    "interrupted (SIGTERM)", the full run of 2026-12-07b) and nothing is left in the folder."""
+    import replay.outputs as outputs
+
+    def cut(*a: object) -> Path:
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(outputs, "Path", cut)
+    seen: list[object] = []
+    monkeypatch.setattr(sys, "unraisablehook", seen.append)
+    with pytest.raises(KeyboardInterrupt):
+        AtomicOutput(tmp_path / "o.rrd")
+    for cls in (AtomicOutput, OutputLock):  # the lock's __del__ reads its descriptor the same way
+        half = cls.__new__(cls)
+        half.__del__()
+        del half
+    gc.collect()
+    assert seen == []
+    assert list(tmp_path.iterdir()) == []
