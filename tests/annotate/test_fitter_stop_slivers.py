@@ -3,7 +3,9 @@ section of the round of 2026-12-07b): the method's sliver pass (:func:`zcut.sliv
 ``replay.pipeline.explained``) has stop points (:mod:`zcut.cancel`), so a stop asked while it runs ends it at its next
 one, the frame stays unfitted (waiting, no result kept), and a fitter not stopped gives the page the fits
 :func:`annotate.fits.fit_frame` gives outside any scope, its sliver fits included. A real synthetic log (hand-made zinc
-nuts, 640 × 480, seed 3, shared with other modules: tests/session_logs.py), prepared as ``zcut annotate`` prepares it."""
+nuts, 640 × 480, seed 3, shared with other modules: tests/session_logs.py), prepared as ``zcut annotate`` prepares it;
+its slivers are smaller than at 1920 × 1200, so the pass tries the regions of :data:`MIN_PX` px or more here (the
+method's ``SLIVER_MIN_PX``, 150 px, leaves it no region on this frame: it would reach no stop point)."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ import pytest
 from fitter_helpers import ends_of_fits
 from session_logs import synth_once
 
+import replay.pipeline.explained
 import zcut.sliver_fits
 from annotate.fits import STOP_WAIT_S, Fitter, Job, fit_frame
 from replay.options import PipelineOptions
@@ -22,6 +25,8 @@ from replay.pipeline.explained import NAME
 from zcut.errors import Cancelled
 
 pytestmark = pytest.mark.slow
+#: the sliver pass's smallest region on this small frame (``replay.pipeline.explained.SLIVER_MIN_PX`` in these tests)
+MIN_PX = 30
 
 
 @pytest.fixture(scope="module")
@@ -44,6 +49,7 @@ def passes_of(monkeypatch: pytest.MonkeyPatch, on_entry: Any = None) -> list[str
     the fitting thread's begins."""
     ends: list[str] = []
     inner = zcut.sliver_fits.fit_slivers
+    monkeypatch.setattr(replay.pipeline.explained, "SLIVER_MIN_PX", MIN_PX)
     here = threading.current_thread()
 
     def noted(*args: Any, **kw: Any) -> Any:
