@@ -11,7 +11,8 @@ the unexplained regions no fit took, :mod:`zcut.sliver_fits`), so the page's pro
 there too. The page is usable meanwhile: a frame not fitted yet is
 answered with its status (``waiting``, ``fitting``), never by holding a worker. Closing the page
 (:meth:`Fitter.stop`) ends a fit under way at its next stop point (:mod:`zcut.cancel`: between the fits' regions
-and candidates): that frame stays unfitted, no frame's fits are partial.
+and candidates, and between the sliver pass's regions and guesses): that frame stays unfitted, no frame's fits are
+partial.
 
 What a frame's fits give the page (:meth:`FrameFits.bundle`, a bundle of :mod:`annotate.payload`):
 
@@ -527,8 +528,6 @@ class Fitter:
         self._cond = threading.Condition()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        #: the frames whose fit :meth:`stop` ended part-way (they are waiting again, unfitted)
-        self.cancelled: list[int] = []
 
     def start(self) -> None:
         self._thread = threading.Thread(target=self._run, name="zcut-annotate-fits", daemon=True)
@@ -536,8 +535,9 @@ class Fitter:
 
     def stop(self) -> None:
         """Stop fitting: a fit under way stops at its next stop point (:mod:`zcut.cancel`: between the fits'
-        regions and candidates) and its frame stays unfitted; returns when the thread has ended (or after
-        :data:`STOP_WAIT_S`: the thread is a daemon, a step longer than that is not waited for)."""
+        regions and candidates, the sliver pass's regions and guesses) and its frame stays unfitted; returns when
+        the thread has ended (or after :data:`STOP_WAIT_S`: the thread is a daemon, a step longer than that is not
+        waited for)."""
         self._stop.set()
         with self._cond:
             self._cond.notify_all()
@@ -598,7 +598,6 @@ class Fitter:
             except Cancelled:  # stopped: the frame is not fitted (it waits again), no result is kept
                 with self._cond:
                     self._pending[i] = (light, work)
-                    self.cancelled.append(i)
                     self._running = None
                     self._cond.notify_all()
                 return

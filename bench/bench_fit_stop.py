@@ -93,8 +93,21 @@ def stops(log: str, index: int, delays: list[float]) -> list[dict[str, Any]]:
     k = float(session.config.bank["explained"].k)
     xyz = frame.xyz
     af.fit_frame(frame, af.Job.of(result), session.config, model)  # the kernels' loading, not in the first stop
+    from zcut.errors import Cancelled
+
+    inner, cancelled = af.fit_frame, []
+
+    def noted(*a: Any, **kw: Any) -> Any:  # a fit the Fitter ran that a stop ended part-way (zcut.errors.Cancelled)
+        try:
+            return inner(*a, **kw)
+        except Cancelled:
+            cancelled.append(True)
+            raise
+
+    af.fit_frame = noted  # type: ignore[assignment]  # the Fitter looks it up at each fit
     out = []
     for delay in delays:
+        cancelled.clear()
         fitter = af.Fitter(session.config, model, lambda i: xyz, model_name="m", model_points=[], k=k)
         fitter.submit(frame, result)
         fitter.start()
@@ -108,7 +121,7 @@ def stops(log: str, index: int, delays: list[float]) -> list[dict[str, Any]]:
             thread.join()  # a stop that did not wait for the end: the fit goes on, not into the next trial
         out.append({"delay_s": delay, "stop_wall_s": wall, "stop_cpu_s": cpu, "alive_after_stop": alive,
                     "fitted": frame.index in fitter.results,
-                    "cancelled": frame.index in getattr(fitter, "cancelled", [])})
+                    "cancelled": bool(cancelled)})
     return out
 
 

@@ -26,7 +26,10 @@ makes likely and a constraint the scan gives for free:
    space kept. Its explained pixels become explained.
 
 Pure: arrays in, arrays out. It reads the scan, the unexplained mask and the frame's fitted poses; never
-a truth or a generator's pose.
+a truth or a generator's pose. Inside a :func:`zcut.cancel.stop_when` scope whose check says stop it raises
+:class:`zcut.errors.Cancelled` at its next stop point (before each region, and before each guess refined): the
+labelling page's fitter stops it part-way (``annotate.fits.Fitter.stop``); outside a scope, or while the check says
+go on, the result is the same.
 """
 
 from __future__ import annotations
@@ -36,6 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from zcut.cancel import stop_point
 from zcut.errors import InputShapeError
 from zcut.fits import PartModel
 from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
@@ -285,6 +289,11 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     -------
     list of SliverFit
         In the order the regions were tried: the largest first, ties in raster order.
+
+    Raises
+    ------
+    zcut.errors.Cancelled
+        Inside a :func:`zcut.cancel.stop_when` scope whose check said stop (no fits: none is partial).
     """
     p = params or SliverParams()
     xyz_mm = np.asarray(xyz_mm)
@@ -319,6 +328,7 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     taken = poses  # the solids a sliver's part may not enter: the fits', then the slivers' fitted before it
     out: list[SliverFit] = []
     for j in keep.tolist():
+        stop_point()  # a caller's stop (zcut.cancel) is seen before each region and each guess refined
         pix = order[bounds[j]:bounds[j + 1]]
         pts = flat_xyz[pix]
         c = pts.mean(axis=0)
@@ -352,6 +362,7 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
         else:
             starts = [(T0, p.iterations) for T0 in guesses]
         for T0, wide_left in starts:
+            stop_point()
             # a wide gate first (a sliver's centroid may lie far from the guess's point), then the gate
             T = T0
             if wide_left > 0:

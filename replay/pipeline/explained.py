@@ -252,6 +252,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     same with and without it.
     """
     from zcut import explained as ex
+    from zcut.cancel import stop_point
     from zcut.fit_vetting import MAX_BEHIND, behind_shares, explained_px, instance_overlaps, vet_fits, without_fits
 
     p = config.bank[NAME]
@@ -277,9 +278,13 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
                                                    min_support=p.fit_min_support)))
     surfaces = ex.KnownSurfaces(parts=[(v @ f.pose[:3, :3].T + f.pose[:3, 3], t) for f in fits],
                                 part_err_mm=[f.err_mm for f in fits])
+    # a caller's stop (zcut.cancel) is seen between the steps after the fits too (the fits' own stop points: their
+    # loops; the sliver pass's: its regions and guesses)
+    stop_point()
     if bin_stages:
         assert rem is not None and reg is not None and model is not None
         surfaces = bin_and_table_surfaces(xyz, rem, reg, model, surfaces)
+        stop_point()
     warning = None
     f_px = 0.5 * (K.fx + K.fy) if intr is not None and K is not None else ex.focal_px(xyz)
     footprint = ex.footprint_mm(xyz, f_px)
@@ -295,6 +300,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
         scored = zone.zone | (rem.bin_points & ~judged)
         judged = judged | scored
     near = ex.nearest_surface(xyz, surfaces, where=judged, within_mm=local)
+    stop_point()
     vetted_out: tuple[PartFit, ...] = ()
     vetted_behind: tuple[PartFit, ...] = ()
     zone_err: np.ndarray | None = None  # the zone's Err image, while it holds for ``surfaces`` and ``near``
@@ -309,6 +315,7 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
             # a part never lies behind the bin or the table (the registered model, the table plane)
             behind = (behind_shares(solid, [f.pose for f in fits], surfaces, f_px=f_px, floor_mm=p.err_floor_mm)
                       if bin_stages and solid is not None and np.isfinite(f_px) else None)
+            stop_point()
             vetting = vet_fits(instance_overlaps(v, t, [f.pose for f in fits], solid=solid),
                                explained_px(near, zone_err, len(fits), k=p.k, where=zone.zone),
                                max_overlap=p.fit_max_overlap, behind=behind, max_behind=MAX_BEHIND)
@@ -321,10 +328,12 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
             surfaces, near = without_fits(xyz, near, dataclasses.replace(surfaces, part_err_mm=stated), kept)
             surfaces = dataclasses.replace(surfaces, part_err_mm=ex.fit_sigmas(near, surfaces.part_err_mm,
                                                                                where=zone.zone))
+    stop_point()
     top = 0
     if p.part_model and TOP_PIECES:  # the unexplained pieces on top of the pile fitted again (zcut.top_pieces)
         fits, surfaces, near, top = _with_top_pieces(xyz, zone, near, surfaces, fits, v, t, prepared, intr, footprint,
                                                      judged, p, zone_err=zone_err)
+    stop_point()
     slivers = 0
     if p.part_model and SLIVER_MIN_PX > 0 and fits:  # the slivers no fit took (zcut.sliver_fits)
         fits, surfaces, near, slivers = _with_slivers(xyz, zone, near, surfaces, fits, v, t, prepared, intr,
