@@ -7,8 +7,9 @@ Each measuring child (this script run with a source tree's code: its ``PYTHONPAT
 set up as ``zcut replay`` sets it, ``replay.process.configure_process``) opens the log, makes one pass over its first
 ``--frames`` frames to warm up (numba's cached kernels, the reader's pooled buffers), then one measured pass: every
 frame read (``LogReader.frames``: the chunk readers' zstd and CRC, the frame's decoding) and its valid pixels taken
-as ``replay.pipeline.stages.locate_bin`` takes them (the decoder's, ``Frame.known_valid``, where the tree and the
-layout have them, else ``zcut.removal.valid_pixels``' pass). It prints, a frame: the process's CPU ms of the pass
+as ``replay.pipeline.stages.locate_bin`` takes them (a frame's ``known_valid``, the decoder's, where the tree and the
+layout have one: the lever of docs/performance.md's section below, at commit 046cc60; else ``zcut.removal.valid_pixels``'
+pass). It prints, a frame: the process's CPU ms of the pass
 (every thread), the CPU ms of the valid pixels' step in its thread, the frame reader's decoding in the consuming
 thread, and a checksum of the valid masks (the trees must agree). With ``--against OLD`` this tree's child and
 OLD's alternate ``--repeats`` times; the medians and OLD / this are printed with the load average. CPU time only:

@@ -146,11 +146,9 @@ Config = Any
 
 
 def _run_zcut(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
-    from replay.pipeline.zone import note_z_max
     from zcut.cuts import find_clusters
 
     cut = find_clusters(zone.height_mm, params=config.zcut)
-    note_z_max(zone, zone.height_mm, cut.z_max)  # SOR's top region reads it instead of scanning the heights again
     return MethodOutput(cut.outliers & zone.zone, cut)
 
 

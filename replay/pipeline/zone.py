@@ -9,7 +9,7 @@ engine that calls it. No I/O, no viewer.
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -73,23 +73,17 @@ class BinLocation:
     bin_model: BinModel | None = None
 
 
-def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams, *, z_max: float | None = None) -> np.ndarray:
+def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.ndarray:
     """(H, W) bool: the top part of the pile SOR judges (``sor.region = "top"``, paper §5.3).
 
     The zone's pixels at or above the z-cut's lowest cut: height ≥ z_max − K·Δd, with z_max the
     highest valid height and K = floor(d_max / Δd + 1e-9), computed as the z-cut computes its
     thresholds (docs/filters.md). SOR and the z-cut then judge the same top portion of the data.
-    ``z_max``: that highest finite height of ``height_mm`` when a stage found it already (the z-cut's
-    ``CutResult.z_max`` of this very image, NaN when no height is finite: :func:`known_z_max`); else it is found
-    here (two passes over the heights fewer when given).
     """
-    if z_max is None:
-        finite = np.isfinite(height_mm)
-        if not finite.any():
-            return np.zeros_like(zone)
-        z_max = float(np.max(height_mm, where=finite, initial=-np.inf))  # no copy of the finite heights
-    elif z_max != z_max:  # NaN: no finite height
+    finite = np.isfinite(height_mm)
+    if not finite.any():
         return np.zeros_like(zone)
+    z_max = float(np.max(height_mm, where=finite, initial=-np.inf))  # no copy of the finite heights
     threshold = z_max - zcut.n_levels * zcut.step
     with np.errstate(invalid="ignore"):
         return zone & (height_mm >= threshold)
@@ -188,31 +182,13 @@ class Zone:
     timings: dict[str, float]
     warnings: tuple[str, ...]
     bin_check: BinCheck | None = None
-    #: what a method found out about ``height_mm`` while it read it, for the others (:func:`note_z_max`); not
-    #: part of the zone's value
-    found: dict[str, Any] = field(default_factory=dict, compare=False, repr=False)
-
-
-def note_z_max(zone: Zone, height_mm: np.ndarray, z_max: float) -> None:
-    """Remember the highest finite height of ``height_mm`` (NaN: none is finite), found by a method that read
-    it (the z-cut: ``CutResult.z_max``), when it is the zone's own height image; :func:`known_z_max` gives it."""
-    if height_mm is zone.height_mm:
-        zone.found["z_max"] = (height_mm, float(z_max))
-
-
-def known_z_max(zone: Zone) -> float | None:
-    """The highest finite height of the zone's height image noted by :func:`note_z_max` (NaN: none is finite),
-    None when no method noted it for this very array."""
-    known = zone.found.get("z_max")
-    return known[1] if known is not None and known[0] is zone.height_mm else None
 
 
 def sor_judged(zone: Zone, config: SorConfig) -> np.ndarray:
-    """(H, W) bool: the points SOR judges for ``config.sor.region`` (with the z-cut's z_max when it ran
-    first on this zone: :func:`known_z_max`)."""
+    """(H, W) bool: the points SOR judges for ``config.sor.region``."""
     if config.sor.region == "zone":
         return zone.zone
-    return sor_region(zone.height_mm, zone.zone, config.zcut, z_max=known_z_max(zone))
+    return sor_region(zone.height_mm, zone.zone, config.zcut)
 
 
 def sor_on_zone(frame: Frame, zone: Zone, config: SorConfig) -> np.ndarray:
