@@ -528,18 +528,25 @@ def open3d_outliers(pts: np.ndarray, valid: np.ndarray, k: int, std_ratio: float
 
 def stage_zones(log: Path, frames: int = 0) -> list[tuple[object, ...]]:
     """(frame, zone, config) of every frame of ``log`` (its first ``frames`` when > 0) after the bin stages (its
-    own bin model, its config), ready for the pipeline's SOR stage."""
+    own bin model, its config) and the methods the config runs before SOR (the z-cut: what it notes on the zone,
+    SOR reads, as in a replay; not timed), ready for the pipeline's SOR stage."""
     from replay.pipeline import stages
     from replay.pipeline.bin_model import bin_model_for
+    from replay.pipeline.methods import registry
     from replay.pipeline.session import ReplaySession
 
     warm_up(4)
     session = ReplaySession.open(log, choose_bin_model=lambda reader: bin_model_for(reader, None))
+    config = session.config
+    methods = config.base_methods
+    before = [registry()[m] for m in methods[:methods.index("sor")]] if "sor" in methods else []
     out: list[tuple[object, ...]] = []
     for frame in session.reader.frames(stop=frames or None):
-        located = stages.locate_bin(frame, session.config, bin_model=session.prepared, seed=session.seed)
-        zone = stages.bin_zone(frame, session.config, bin_model=session.prepared, located=located)
-        out.append((frame, zone, session.config))
+        located = stages.locate_bin(frame, config, bin_model=session.prepared, seed=session.seed)
+        zone = stages.bin_zone(frame, config, bin_model=session.prepared, located=located)
+        for method in before:
+            method.run(frame, zone, config)
+        out.append((frame, zone, config))
     return out
 
 

@@ -1,0 +1,111 @@
+"""Benchmark: a log's frames read and their valid pixels found, as a replay's reader and locator do.
+
+Run: ``PYTHONPATH=. .venv/bin/python bench/bench_read_valid.py --log LOG.mcap [--against OLD] [--repeats N]
+[--frames N]``
+
+Each measuring child (this script run with a source tree's code: its ``PYTHONPATH`` and working folder, its process
+set up as ``zcut replay`` sets it, ``replay.process.configure_process``) opens the log, makes one pass over its first
+``--frames`` frames to warm up (numba's cached kernels, the reader's pooled buffers), then one measured pass: every
+frame read (``LogReader.frames``: the chunk readers' zstd and CRC, the frame's decoding) and its valid pixels taken
+as ``replay.pipeline.stages.locate_bin`` takes them (a frame's ``known_valid``, the decoder's, where the tree and the
+layout have one: the lever of docs/performance.md's section below, at commit 046cc60; else ``zcut.removal.valid_pixels``'
+pass). It prints, a frame: the process's CPU ms of the pass
+(every thread), the CPU ms of the valid pixels' step in its thread, the frame reader's decoding in the consuming
+thread, and a checksum of the valid masks (the trees must agree). With ``--against OLD`` this tree's child and
+OLD's alternate ``--repeats`` times; the medians and OLD / this are printed with the load average. CPU time only:
+the machine is shared (docs/performance.md, "The frame's valid pixels from its decoding").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+
+def child(log: Path, n_frames: int) -> dict[str, float]:
+    """One tree's figures (run with that tree's code)."""
+    from replay.process import configure_process
+
+    configure_process()
+    import numpy as np
+
+    from replay.logs.reader import LogReader
+    from zcut.removal import valid_pixels
+
+    reader = LogReader(log)
+
+    def one_pass() -> tuple[float, float, int, int]:
+        t0 = time.process_time()
+        step = 0.0
+        check = 0
+        n = 0
+        for frame in reader.frames(stop=n_frames):
+            s0 = time.thread_time()
+            valid = getattr(frame, "known_valid", None)
+            if valid is None:
+                valid = valid_pixels(frame.xyz)
+            step += time.thread_time() - s0
+            check = (check * 1_000_003 + int(np.count_nonzero(valid)) * 7 + int(np.flatnonzero(valid[::97, ::89]).sum())) % (1 << 61)
+            n += 1
+        return time.process_time() - t0, step, n, check
+
+    one_pass()  # warm: kernels loaded, buffers pooled
+    total, step, n, check = one_pass()
+    return {"pass_ms": 1000 * total / n, "valid_ms": 1000 * step / n, "frames": n, "check": check}
+
+
+def run_child(tree: Path, log: Path, n_frames: int) -> dict[str, float]:
+    env = dict(os.environ, PYTHONPATH=str(tree))
+    out = subprocess.run([sys.executable, os.path.abspath(__file__), "--child", str(log), "--frames", str(n_frames)],
+                         env=env, cwd=str(tree), check=True, capture_output=True, text=True).stdout
+    result: dict[str, float] = json.loads(out.strip().splitlines()[-1])
+    return result
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--log", type=Path, required=False)
+    ap.add_argument("--against", type=Path, help="source tree measured in the same run (alternating)")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--frames", type=int, default=25, help="the log's first N frames")
+    ap.add_argument("--child", type=Path, help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.child is not None:
+        print(json.dumps(child(a.child, a.frames)))
+        return
+    if a.log is None:
+        ap.error("--log is required")
+    here = Path(__file__).resolve().parents[1]
+    trees = [("this", here)] + ([("old", a.against.resolve())] if a.against else [])
+    runs: dict[str, list[dict[str, float]]] = {name: [] for name, _ in trees}
+    loads = [os.getloadavg()[0]]
+    for i in range(a.repeats):
+        order = trees if i % 2 == 0 else trees[::-1]
+        for name, tree in order:
+            r = run_child(tree, a.log.resolve(), a.frames)
+            runs[name].append(r)
+            loads.append(os.getloadavg()[0])
+            print(f"  run {i + 1} {name:4s}: pass {r['pass_ms']:7.2f} CPU ms a frame, valid pixels {r['valid_ms']:6.2f}, "
+                  f"{int(r['frames'])} frames, check {int(r['check'])}", flush=True)
+    print(f"{a.log.name}: CPU ms a frame, medians of {a.repeats}; load average {min(loads):.1f}-{max(loads):.1f} "
+          f"on {os.cpu_count()} cores")
+    med = {name: {k: statistics.median(r[k] for r in rs) for k in ("pass_ms", "valid_ms")} for name, rs in runs.items()}
+    print(f"  {'tree':6s} {'read + valid':>13s} {'valid step':>11s}")
+    for name, m in med.items():
+        print(f"  {name:6s} {m['pass_ms']:13.2f} {m['valid_ms']:11.2f}")
+    if a.against:
+        o, n = med["old"], med["this"]
+        print(f"  old / this: read + valid {o['pass_ms'] / n['pass_ms']:.3f} x ({o['pass_ms'] - n['pass_ms']:+.2f} ms "
+              f"saved), valid step {o['valid_ms'] - n['valid_ms']:+.2f} ms saved")
+        same = {int(r["check"]) for rs in runs.values() for r in rs}
+        print(f"  valid masks' checksum {'the same in every run' if len(same) == 1 else 'DIFFERS: ' + str(sorted(same))}")
+
+
+if __name__ == "__main__":
+    main()
