@@ -41,6 +41,12 @@ class Frame:
         The log's ``/ground_truth/depth`` of this frame (camera z in metres of the first surface hit, NaN
         where nothing is hit), a read-only view of the message's bytes, when the reader was asked for it
         (``LogReader(truth_depth=True)``) and the log holds a usable one paired by stamp; else None.
+    decoded_valid : tuple of two ndarrays or None
+        ``(xyz, valid)``: the (H, W) bool mask of the pixels with three finite coordinates that the decoder
+        wrote in the pass that unpacked ``xyz`` (:func:`replay.logs.ros2_msgs.cloud_to_arrays_valid`), with
+        the array it is of. Read it through :attr:`known_valid`, which gives it only for that very ``xyz`` (a
+        frame made from this one with other points, ``dataclasses.replace(frame, xyz=...)``, has none). None:
+        not known (other layouts, frames not read from a log).
     """
 
     xyz: np.ndarray
@@ -54,6 +60,15 @@ class Frame:
     codes: dict[str, np.ndarray] = field(default_factory=dict)
     has_points: bool = True
     truth_depth_m: np.ndarray | None = None
+    decoded_valid: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)
+
+    @property
+    def known_valid(self) -> np.ndarray | None:
+        """(H, W) bool: the pixels whose three coordinates are finite, as the decoder found them for this
+        frame's ``xyz`` (``zcut.removal.valid_pixels(frame.xyz)``, not computed again); None when not known. A
+        frame's arrays are not written after it was read (the replay's stages read them only)."""
+        d = self.decoded_valid
+        return d[1] if d is not None and d[0] is self.xyz else None
 
     @property
     def shape(self) -> tuple[int, int]:

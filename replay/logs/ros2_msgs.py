@@ -494,7 +494,7 @@ def _check_rows(data: memoryview, h: int, w: int, *, step: int, row: int, what: 
 def cloud_to_arrays(
     msg: CloudMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty,
 ) -> tuple[np.ndarray, np.ndarray | None]:
-    """View a ``PointCloud2`` as arrays.
+    """View a ``PointCloud2`` as arrays (:func:`cloud_to_arrays_valid` without its valid mask).
 
     The size is checked against the bytes present and ``max_pixels`` before the output arrays
     are allocated (by ``alloc``; every element is written).
@@ -514,6 +514,37 @@ def cloud_to_arrays(
         whatever ``is_dense`` claims.
     rgb : (H, W, 3) uint8 ndarray or None
         From an ``rgb``/``rgba`` field (UINT32 or FLOAT32-packed ``0x00RRGGBB``), else None.
+    """
+    xyz, rgb, _ = cloud_to_arrays_valid(msg, where=where, max_pixels=max_pixels, alloc=alloc, valid=False)
+    return xyz, rgb
+
+
+def cloud_to_arrays_valid(
+    msg: CloudMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty, valid: bool = True,
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """:func:`cloud_to_arrays` and, written by the same pass, the pixels whose point is valid.
+
+    Parameters
+    ----------
+    msg : CloudMsg
+    where : str
+        "topic /x, message 3" style prefix for error messages.
+    max_pixels : int or None
+        Largest H x W accepted (None: no cap).
+    alloc : callable
+        Allocates the output arrays (``np.empty``'s signature; every element is written).
+    valid : bool
+        Write the valid mask where the layout allows it (False: never).
+
+    Returns
+    -------
+    xyz, rgb
+        As :func:`cloud_to_arrays`.
+    valid : (H, W) bool ndarray or None
+        True where ``xyz`` holds three finite coordinates, the same array as
+        ``zcut.removal.valid_pixels(xyz)`` computes in a pass of its own (a replay's locator did, 1.7-5.8 CPU ms
+        a 1920 x 1200 frame: docs/performance.md, "The frame's valid pixels from its decoding"); None for the
+        layouts whose kernel does not write it (only zcut's own 16-byte points without colour do).
     """
     h, w, step, row_step = msg.height, msg.width, msg.point_step, msg.row_step
     by_name = {f.name: f for f in msg.fields}
@@ -558,6 +589,7 @@ def cloud_to_arrays(
             offsets.append(color.offset)
     xyz = alloc((h, w, 3), np.float32)
     rgb = alloc((h, w, 3), np.uint8) if color is not None else None
+    ok: np.ndarray | None = None
     words_ok = (
         not msg.is_bigendian and sys.byteorder == "little" and coord_types == {FLOAT32}
         and step % 4 == 0 and row_step % 4 == 0 and all(o % 4 == 0 for o in offsets)
@@ -572,10 +604,14 @@ def cloud_to_arrays(
         elif (ox, oy, oz) == (0, 1, 2) and step == 16 and row_step == 16 * w and xyz.flags.c_contiguous:
             # zcut's own layout (x, y, z, rgba: 16 bytes a point, rows back to back; the synthetic logs and
             # `zcut record`'s): the points as one run of 4-word groups, offsets known to the compiler
-            _unpack_words16(words.reshape(-1), xyz.reshape(-1).view(np.uint32))
+            if valid:
+                ok = alloc((h, w), np.bool_)
+                _unpack_words16_valid(words.reshape(-1), xyz.reshape(-1).view(np.uint32), ok.reshape(-1))
+            else:
+                _unpack_words16(words.reshape(-1), xyz.reshape(-1).view(np.uint32))
         else:
             _unpack_words(words, ox, oy, oz, xyz)
-        return xyz, rgb
+        return xyz, rgb, ok
     dt = np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": step})
     # zero-copy view: rows row_step apart, points point_step apart (padding never touched)
     pts = np.ndarray((h, w), dtype=dt, buffer=msg.data, offset=0, strides=(row_step, step))
@@ -589,7 +625,7 @@ def cloud_to_arrays(
         _unpack_xyz_rgb(px, py, pz, c, xyz, rgb)
     else:
         _unpack_xyz(px, py, pz, xyz)
-    return xyz, rgb
+    return xyz, rgb, None
 
 
 @numba.njit(cache=True, nogil=True)
@@ -668,6 +704,23 @@ def _unpack_words16(words, out):  # type: ignore[no-untyped-def]  # numba kernel
         out[3 * k] = (x & ~m) | (_NAN & m)
         out[3 * k + 1] = (y & ~m) | (_NAN & m)
         out[3 * k + 2] = (z & ~m) | (_NAN & m)
+
+
+@numba.njit(cache=True, nogil=True)
+def _unpack_words16_valid(words, out, valid):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
+    # _unpack_words16, and ``valid`` the (n,) points' "not bad": after the unpacking a point's three coordinates
+    # are finite exactly when it was not bad (a bad point is NaN, NaN, NaN; a kept one has no all-ones exponent)
+    n = out.shape[0] // 3
+    for k in range(n):
+        x = words[4 * k]
+        y = words[4 * k + 1]
+        z = words[4 * k + 2]
+        bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
+        m = _ALL if bad else _NONE
+        out[3 * k] = (x & ~m) | (_NAN & m)
+        out[3 * k + 1] = (y & ~m) | (_NAN & m)
+        out[3 * k + 2] = (z & ~m) | (_NAN & m)
+        valid[k] = not bad
 
 
 @numba.njit(cache=True, nogil=True)

@@ -556,14 +556,16 @@ class FrameStream(Iterator[Frame]):
         # CameraInfo on the camera info topic
         img = cast(rm.ImageMsg | None, parts.get(r.image_topic) if r.image_topic else None)
         try:
+            valid = None
             if isinstance(cloud, rm.ImageMsg):  # a results file without its cloud: no points
                 masks[ctopic] = rm.image_to_mask(cloud, where=where, max_pixels=r.max_pixels)
                 xyz, rgb = np.broadcast_to(np.float32(np.nan), (*shape, 3)), None
             else:
                 # with an Image paired the frame's colours are the image's (below, or the frame is
-                # skipped): the cloud's own colour field is not decoded, only x, y, z
-                xyz, rgb = rm.cloud_to_arrays(cloud if img is None else without_colour(cloud), where=where,
-                                              max_pixels=r.max_pixels, alloc=self._alloc)
+                # skipped): the cloud's own colour field is not decoded, only x, y, z (and the valid
+                # pixels, in the same pass where the layout allows: the locator reads them)
+                xyz, rgb, valid = rm.cloud_to_arrays_valid(cloud if img is None else without_colour(cloud),
+                                                           where=where, max_pixels=r.max_pixels, alloc=self._alloc)
         except LogFormatError as e:
             raise _Skip(_kind_of(e), str(e), ctopic) from None
         if img is not None:
@@ -612,6 +614,7 @@ class FrameStream(Iterator[Frame]):
             xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
             intrinsics=intrinsics, topic=ctopic, index=idx, masks=masks, codes=codes,
             has_points=not r.cloudless, truth_depth_m=depth,
+            decoded_valid=(xyz, valid) if valid is not None else None,
         )
 
 

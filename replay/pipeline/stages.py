@@ -171,7 +171,9 @@ def locate_bin(
     timings: dict[str, float] = {}
     warnings: list[str] = []
     xyz = frame.xyz
-    valid = valid_pixels(xyz)
+    valid = frame.known_valid  # the decoder's, written while it unpacked xyz
+    if valid is None:
+        valid = valid_pixels(xyz)
 
     bm: BinMaskResult | None = None
     reg: RegistrationResult | None = None

@@ -30,7 +30,7 @@ def log(tmp_path_factory):
 def counted(monkeypatch):
     """Counts of the cloud decodings and of the bin locations (by frame index, seeded or not)."""
     calls: Counter = Counter()
-    decode, locate = rm.cloud_to_arrays, session_mod.locate_bin
+    decode, locate = rm.cloud_to_arrays_valid, session_mod.locate_bin
 
     def cloud_to_arrays(msg, **kw):
         calls["decode"] += 1
@@ -40,7 +40,7 @@ def counted(monkeypatch):
         calls[("locate", frame.index, kw.get("seed") is not None)] += 1
         return locate(frame, config, **kw)
 
-    monkeypatch.setattr(rm, "cloud_to_arrays", cloud_to_arrays)
+    monkeypatch.setattr(rm, "cloud_to_arrays_valid", cloud_to_arrays)  # what the frame stream calls
     monkeypatch.setattr(session_mod, "locate_bin", locate_bin)
     return calls
 
