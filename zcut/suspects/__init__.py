@@ -25,7 +25,9 @@ thresholds taken from the frame's own noise:
 - ``above_rim`` — the points above the rim, which the pipeline's removal flags (given as a mask).
 - ``patch`` — **patches cut off by depth steps** (:mod:`~zcut.suspects.patches`): small pieces of the depth
   image that a depth step, not a hole, bounds on most of their border — a surface at another depth than all
-  the measured surface around it (a stereo matcher's wrong match over a whole patch).
+  the measured surface around it (a stereo matcher's wrong match over a whole patch). The labelling page
+  runs it only without a part model (``suspects(..., patches=False)`` where it fits one:
+  ``annotate/groups.py``).
 
 :func:`suspects` runs them all and groups the result for review: per detector, suspects within a
 merge radius form one group; the radius of the detector with most groups doubles until the frame

@@ -589,6 +589,7 @@ def suspects_reference(
     params: SuspectParams,
     intrinsics: Intrinsics | None = None,
     edge_surface: EdgeSurfaceParams | None = None,
+    patches: bool = True,
 ) -> SuspectResult:
     """The previous :func:`zcut.suspects.suspects` (same parameters, same result; the oracle)."""
     if not isinstance(params, SuspectParams):
@@ -632,7 +633,8 @@ def suspects_reference(
     floating, floating_gap = floating_components_reference(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
     codes[floating] |= FLOATING
     codes[easy] |= ABOVE_RIM
-    codes[cut_off_patches_reference(context, jump, max_px=PATCH_RHO * a_max) & zone] |= PATCH
+    if patches:
+        codes[cut_off_patches_reference(context, jump, max_px=PATCH_RHO * a_max) & zone] |= PATCH
     mask = codes > 0
 
     # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the
