@@ -25,8 +25,11 @@ thresholds taken from the frame's own noise:
 - ``above_rim`` — the points above the rim, which the pipeline's removal flags (given as a mask).
 - ``patch`` — **patches cut off by depth steps** (:mod:`~zcut.suspects.patches`): small pieces of the depth
   image that a depth step, not a hole, bounds on most of their border — a surface at another depth than all
-  the measured surface around it (a stereo matcher's wrong match over a whole patch). The labelling page
-  runs it only without a part model (``suspects(..., patches=False)`` where it fits one:
+  the measured surface around it (a stereo matcher's wrong match over a whole patch). The small floating
+  components are the floating detector's: a pixel of a component its cut judges (one that clears everything
+  around it, kept or not) is never a patch, so ``plain_rho`` and the patch detector each move the union on
+  their own (:mod:`~zcut.suspects.floating`). The labelling page runs the patch detector only without a part
+  model (``suspects(..., patches=False)`` where it fits one:
   ``annotate/groups.py``).
 
 :func:`suspects` runs them all and groups the result for review: per detector, suspects within a

@@ -542,12 +542,16 @@ def group_suspects_reference(codes: np.ndarray, strength: np.ndarray, params: Su
 
 
 def floating_components_reference(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
-                        a_max: float, step: float, profile: NoiseProfile) -> tuple[Mask, np.ndarray]:
+                        a_max: float, step: float, profile: NoiseProfile, *,
+                        judged: np.ndarray | None = None) -> tuple[Mask, np.ndarray]:
     """The floating detector: z-cut components over the zone's whole height range (see module notes).
 
     Returns the mask and, on its pixels, their gap (mm) over the median height of the measured
-    pixels bordering their component (NaN elsewhere, or when none borders it).
+    pixels bordering their component (NaN elsewhere, or when none borders it). ``judged``: when given, set to
+    the pixels of the components the detector judges (those of its cut that clear everything around them).
     """
+    if judged is not None:
+        judged[...] = False
     hz = np.where(zone, height_mm, np.nan)
     fin = np.isfinite(hz)
     gap = np.full(zone.shape, np.nan)
@@ -571,6 +575,8 @@ def floating_components_reference(height_mm: np.ndarray, zone: Mask, valid: Mask
     keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
     mask = np.concatenate([[False], keep])[lab] & zone
+    if judged is not None:
+        judged[...] = np.concatenate([[False], clear])[lab] & zone
     if mask.any():
         kept = np.where(mask, lab, 0)
         border = ndimage.maximum_filter(kept, size=3, mode="constant")
@@ -630,11 +636,13 @@ def suspects_reference(
         filled = _fill_blobs_previous(off, zone, valid & ~easy, iterations=params.fill_iterations)
         codes[filled & ~off] = RESIDUAL_UP
     rough = zone & ~(np.abs(residual) <= tau)  # in the zone: inf (no continuation) is rough
-    floating, floating_gap = floating_components_reference(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
+    judged = np.zeros((H, W), bool)  # the components the floating detector judges: its own, not patches
+    floating, floating_gap = floating_components_reference(h_zcut, zone, valid & ~easy, rough, params, a_max, step,
+                                                           profile, judged=judged)
     codes[floating] |= FLOATING
     codes[easy] |= ABOVE_RIM
     if patches:
-        codes[cut_off_patches_reference(context, jump, max_px=PATCH_RHO * a_max) & zone] |= PATCH
+        codes[cut_off_patches_reference(context, jump, max_px=PATCH_RHO * a_max) & zone & ~judged] |= PATCH
     mask = codes > 0
 
     # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the

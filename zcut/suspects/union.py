@@ -672,13 +672,17 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
     if patches:
         patch = cut_off_patches(context, jump, max_px=PATCH_RHO * a_max)
         patch &= zone
+        judged: np.ndarray | None = np.empty((H, W), bool)
     else:
-        patch = np.zeros((H, W), bool)
+        patch, judged = np.zeros((H, W), bool), None
     rough = np.empty((H, W), bool)
     _rough(zone, residual, tau, rough)  # in the zone: inf (no continuation) is rough
     # the zone's heights in the jump's array (surface_residuals, its only reader, is done; the gate takes it later)
     floating, floating_at, floating_gap = floating_components(h_zcut, zone, judged_ctx, rough, params, a_max,
-                                                              step, profile, hz=ws.empty("jump", (H, W)))
+                                                              step, profile, hz=ws.empty("jump", (H, W)),
+                                                              judged=judged)
+    if judged is not None:  # the components the floating detector judges are its own (zcut.suspects.floating)
+        np.greater(patch, judged, out=patch)  # patch & ~judged
 
     # the codes, and the gaps: a floating pixel's over the measured pixels bordering its component; a
     # pixel off the surface, its residual (to the nearest continuation) or, with edge_surface, its distance
