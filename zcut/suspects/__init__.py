@@ -26,9 +26,9 @@ thresholds taken from the frame's own noise:
 - ``patch`` — **patches cut off by depth steps** (:mod:`~zcut.suspects.patches`): small pieces of the depth
   image that a depth step, not a hole, bounds on most of their border — a surface at another depth than all
   the measured surface around it (a stereo matcher's wrong match over a whole patch). The small floating
-  components are the floating detector's: a pixel of a component its cut judges (one that clears everything
-  around it, kept or not) is never a patch, so ``plain_rho`` and the patch detector each move the union on
-  their own (:mod:`~zcut.suspects.floating`). The labelling page runs the patch detector only without a part
+  components are the floating detector's: a pixel of a component its cut judges alone (one that clears
+  everything around it, smaller than ``FLOATING_OWNED_RHO`` · a_max, kept or not) is never a patch, so
+  ``plain_rho`` moves the union on its own (:mod:`~zcut.suspects.floating`). The labelling page runs the patch detector only without a part
   model (``suspects(..., patches=False)`` where it fits one:
   ``annotate/groups.py``).
 
@@ -73,6 +73,7 @@ from .detectors import (
 from .floating import (
     FLOATING_CLEARANCE_SIGMAS,
     FLOATING_CLEARANCE_STEPS,
+    FLOATING_OWNED_RHO,
     FLOATING_STEP_SIGMAS,
     HOLE_MIN_NEIGHBOURS,
     floating_evidence,
@@ -139,6 +140,7 @@ __all__ = [
     "FILL_MIN_NEIGHBOURS",
     "FLOATING_CLEARANCE_SIGMAS",
     "FLOATING_CLEARANCE_STEPS",
+    "FLOATING_OWNED_RHO",
     "FLOATING_STEP_SIGMAS",
     "GAP_MAX_RADIUS",
     "GAP_MIN_PIXELS",

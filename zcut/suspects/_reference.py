@@ -38,6 +38,7 @@ from .detectors import (
 from .floating import (
     FLOATING_CLEARANCE_SIGMAS,
     FLOATING_CLEARANCE_STEPS,
+    FLOATING_OWNED_RHO,
     FLOATING_STEP_SIGMAS,
     floating_evidence,
 )
@@ -548,7 +549,8 @@ def floating_components_reference(height_mm: np.ndarray, zone: Mask, valid: Mask
 
     Returns the mask and, on its pixels, their gap (mm) over the median height of the measured
     pixels bordering their component (NaN elsewhere, or when none borders it). ``judged``: when given, set to
-    the pixels of the components the detector judges (those of its cut that clear everything around them).
+    the pixels of the components the detector judges alone (those of its cut that clear everything around them and
+    are smaller than FLOATING_OWNED_RHO · a_max).
     """
     if judged is not None:
         judged[...] = False
@@ -576,7 +578,7 @@ def floating_components_reference(height_mm: np.ndarray, zone: Mask, valid: Mask
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
     mask = np.concatenate([[False], keep])[lab] & zone
     if judged is not None:
-        judged[...] = np.concatenate([[False], clear])[lab] & zone
+        judged[...] = np.concatenate([[False], clear & (cut.areas < FLOATING_OWNED_RHO * a_max)])[lab] & zone
     if mask.any():
         kept = np.where(mask, lab, 0)
         border = ndimage.maximum_filter(kept, size=3, mode="constant")
