@@ -17,7 +17,7 @@ import zcut.components
 from annotate.groups import GCOL, review_groups
 from zcut.edge_surface import EdgeSurfaceParams
 from zcut.params import SuspectParams
-from zcut.suspects import FLOATING, PATCH, suspects, suspects_reference
+from zcut.suspects import FLOATING, FLOATING_OWNED_RHO, PATCH, suspects, suspects_reference
 from zcut.suspects import grouping as grouping_module
 from zcut.suspects import patches as patches_module
 from zcut.suspects.patches import PATCH_RHO
@@ -90,6 +90,22 @@ def test_plain_rho_moves_the_union_on_its_own(plain_rho: float) -> None:
     assert front.all() if plain_rho > 0 else not front.any()
     assert not (res.detectors[FRONT] & PATCH).any()
     assert (res.detectors[BEHIND] & PATCH).all() and (res.detectors[LARGE] & PATCH).all()  # the patches unchanged
+
+
+def test_a_larger_floating_component_without_evidence_stays_a_patch() -> None:
+    """Above FLOATING_OWNED_RHO · a_max (70 px) the floating detector does not own a component: one it leaves for
+    want of evidence (10 x 10 = 100 px, below plain_rho · a_max's test) is still proposed, as a patch."""
+    xyz, h, zone = frame(nan_beside_front=True)
+    block = (slice(40, 50), slice(60, 70))
+    hb = h.copy()
+    hb[block] += 15.0
+    hb[45, 70] = np.nan  # its ring is not all measured
+    xyz = np.stack([xyz[..., 0], xyz[..., 1], -hb / 1000.0], axis=2)
+    params = SuspectParams(a_max=A_MAX, evidence_holes=1.0, evidence_inconsistent=1.0, evidence_ring_valid=1.0)
+    assert FLOATING_OWNED_RHO * A_MAX < 100 < params.floating_rho * A_MAX
+    res = both(xyz, hb, np.isfinite(hb), params, patches=True)
+    assert not (res.detectors[block] & FLOATING).any() and (res.detectors[block] & PATCH).all()
+    assert res.mask[FRONT].all() and (res.detectors[FRONT] == FLOATING).all()  # 25 px: owned, kept by its size
 
 
 def test_without_the_patch_detector_no_pixel_is_a_patch_and_the_others_are_unchanged() -> None:
