@@ -185,7 +185,7 @@ class Catalogue:
     def _prepare(self, frame: Frame, result: FrameResult) -> tuple[ServedFrame, FrameRecord]:
         """The page's payloads of one frame, its points spilled, the frame registered in the store."""
         pf = prepare_frame(frame, result, suspect_params=self.suspect_params, part=self.part,
-                           focus=None if self.focus is None else self.focus(frame))
+                           focus=None if self.focus is None else self.focus(frame), fits=self.fitter is not None)
         sf = pf.served
         self.geometry.put(sf.index, pf.geometry)
         rec = self.store.add_frame(

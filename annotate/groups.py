@@ -5,8 +5,9 @@ what a person must judge (flying pixels along occlusion edges, ghosts larger tha
 from the camera). The page therefore proposes *groups* (``docs/labelling.md``):
 
 - the suspect groups of :func:`zcut.suspects.suspects` — filter-independent detectors (surface
-  residuals up and down, mixed pixels, floating components of any depth, points above the rim),
-  grouped by detector and merged until a frame has at most ``SuspectParams.max_groups`` (40) of them;
+  residuals up and down, mixed pixels, floating components of any depth, points above the rim, and
+  without a part model patches cut off by depth steps), grouped by detector and merged until a frame has
+  at most ``SuspectParams.max_groups`` (40) of them;
 - for every filter method the replay ran (``zcut``, ``sor``, the bank), the pixels it flags that no
   suspect group holds, grouped by strength class (:func:`zcut.suspects.strength_classes`, with the
   frame's τ) and proximity into at most :data:`~annotate.budget.METHOD_GROUPS_MAX` groups per method
@@ -154,7 +155,7 @@ FOCUS_SOURCES = ("removed only by A", "removed only by B")
 
 def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndarray, valid: np.ndarray,
                   zone: np.ndarray, above_rim: np.ndarray, outliers: dict[str, np.ndarray],
-                  params: SuspectParams, focus: np.ndarray | None = None) -> ReviewGroups:
+                  params: SuspectParams, focus: np.ndarray | None = None, fits: bool = False) -> ReviewGroups:
     """The review groups of a frame and their features.
 
     Parameters
@@ -174,6 +175,12 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
         Review only these pixels (``zcut annotate --disagreement``: 1 where only A removed a pixel, 2
         where only B did): the groups are their components by code, merged by proximity to at most
         half of ``params.max_groups`` each (sources :data:`FOCUS_SOURCES`), and nothing else.
+    fits : bool
+        The page fits a part model to this frame (``zcut annotate`` with a part model: the config's
+        ``explained.part_model`` or the log's ``part_model.ply``, :func:`annotate.fits.fitter_for`). Its
+        proposals then come from the fits, and the suspects' patch detector, built for the page without a
+        part model (real scans, stereo scenes, docs/labelling_real.md), does not run: no review group is a
+        patch. False (the default): every detector runs.
 
     Returns
     -------
@@ -181,7 +188,8 @@ def review_groups(xyz: np.ndarray, rgb: np.ndarray | None, *, height_mm: np.ndar
     """
     H, W = valid.shape
     # the suspects' gaps on one side of an edge: a part's real edge is on the surface (docs/labelling.md)
-    res = suspects(xyz, height_mm, zone, above_rim, params=params, edge_surface=EdgeSurfaceParams())
+    res = suspects(xyz, height_mm, zone, above_rim, params=params, edge_surface=EdgeSurfaceParams(),
+                   patches=not fits)
     res.release()  # surface_mm is not read here: its frame in mm goes to the next call (SuspectResult.release)
     ids = res.groups.astype(np.int32).copy()
     methods = tuple(outliers)

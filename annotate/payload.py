@@ -558,7 +558,7 @@ def _z_levels(z_ids: np.ndarray, n_z: int, cut: object) -> np.ndarray:
 
 
 def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectParams | None = None, part: str | None = None,
-                  focus: np.ndarray | None = None) -> PreparedFrame:
+                  focus: np.ndarray | None = None, fits: bool = False) -> PreparedFrame:
     """Build the page's view of a frame from the frame and the pipeline's result for it.
 
     Parameters
@@ -575,6 +575,8 @@ def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectP
     focus : (H, W) uint8 ndarray, optional
         The only pixels to list as review groups (``zcut annotate --disagreement``: where two filters
         disagree, :func:`annotate.groups.review_groups`); the header's ``focus`` is then true.
+    fits : bool
+        The page fits a part model to the frame (:func:`annotate.groups.review_groups`' ``fits``).
 
     Returns
     -------
@@ -612,7 +614,8 @@ def prepare_frame(frame: Frame, result: FrameResult, *, suspect_params: SuspectP
     groups = review_groups(frame.xyz, frame.rgb, height_mm=np.asarray(result.height_mm, np.float64), valid=valid,
                            zone=zone & valid, above_rim=easy,
                            outliers={k: np.asarray(v, bool) & valid for k, v in result.outliers.items()},
-                           params=suspect_params if suspect_params is not None else SuspectParams(), focus=focus)
+                           params=suspect_params if suspect_params is not None else SuspectParams(), focus=focus,
+                           fits=fits)
     bin_stages = result.removal is not None
     header.update({
         "n_groups": groups.n, "group_columns": list(GROUP_COLUMNS), "group_sources": list(groups.sources),

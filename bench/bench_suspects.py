@@ -3,7 +3,7 @@
     .venv/bin/python bench/bench_suspects.py [--work DIR] [--kinds zinc_nuts,...] [--frames 3]
         [--tune-seeds 1] [--report-seeds 2,3] [--tune] [--real DIR] [--png DIR]
     .venv/bin/python bench/bench_suspects.py --speed [--sizes 1920x1200,960x600] [--real DIR] [--repeat 3]
-        [--against OLD_TREE] [--rounds 2]
+        [--against OLD_TREE [--fits]] [--rounds 2]
 
 1. Synthetic logs (``zcut synth``, 1920 × 1200) of each part kind and seed, and a bin model built from
    an empty-bin series (``zcut synth --empty``, ``zcut bin-model``), in ``--work`` (reused when
@@ -30,12 +30,15 @@
    most pixels to judge). Whole calls: the median of ``--repeat`` calls' CPU time; parts: the CPU
    time cProfile gives each part's function in one more call. Each frame's two results are checked
    equal field by field first.
-6. ``--speed --against OLD_TREE`` (e.g. ``git archive <commit> | tar -x -C /tmp/sus_old``): instead,
+6. ``--speed --against OLD_TREE [--fits]`` (e.g. ``git archive <commit> | tar -x -C /tmp/sus_old``): instead,
    the whole call of the fast path of that tree against this one's, each in its own process (the
    same frames, written once to ``--work`` as .npy), alternating ``--rounds`` times; per frame the
    median CPU ms of ``--repeat`` calls of each round, and whether the two trees' results are equal
    (mask, groups, detectors, gaps, residuals, group scores). Besides the frames of ``--speed``, one
    with large invalid regions (the zinc-nut frame, its top half and a third of the rest unmeasured).
+   ``--fits``: both trees call it as the labelling page does with a part model (``patches=False``, in a tree that
+   has the option; an older tree runs every detector, as its page did); printed beside the times: the suspect
+   pixels, the patch detector's pixels, the groups grouped by ``patch`` and all groups, old / new.
 7. ``--speed --against OLD_TREE --parts``: the parts the fifth round changed (docs/performance.md,
    "Suspects ... fifth round"), ``OLD_TREE``'s code loaded beside this tree's in one process,
    alternating, outputs checked equal, on the .npy frames of ``--work`` (made by 6) and the scans of
@@ -421,19 +424,21 @@ def run_speed(work: Path, sizes: list[tuple[int, int]], real: Path | None, repea
 
 #: the worker of --against: times suspects() as the labelling page calls it on .npy / .pcd frames
 _WORKER = """
-import sys, time
+import inspect, sys, time
 import numpy as np
 from zcut.params import SuspectParams
 from zcut.edge_surface import EdgeSurfaceParams
 from zcut.suspects import suspects
 from replay.logs.pcd import read_pcd
-repeat, out = int(sys.argv[1]), sys.argv[2]
-for k, path in enumerate(sys.argv[3:]):
+repeat, out, mode = int(sys.argv[1]), sys.argv[2], sys.argv[3]
+# --fits: as the page calls it with a part model (no patch detector), where the tree has the option
+kw = {"patches": False} if mode == "fits" and "patches" in inspect.signature(suspects).parameters else {}
+for k, path in enumerate(sys.argv[4:]):
     xyz = read_pcd(path).xyz if path.endswith(".pcd") else np.load(path)
     h = -1000.0 * xyz[..., 2].astype(np.float64)
     zone = np.isfinite(xyz).all(axis=2)
     def call():
-        r = suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
+        r = suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams(), **kw)
         getattr(r, "release", lambda: None)()  # the frame in mm handed back, as the page does (trees since 2026-12-06f)
         return r
     r = call()
@@ -443,14 +448,15 @@ for k, path in enumerate(sys.argv[3:]):
         call()
         ts.append(time.process_time() - c0)
     np.savez(f"{out}.{k}.npz", mask=r.mask, groups=r.groups, detectors=r.detectors, gap=r.gap_mm,
-             residual=r.residual_mm, score=r.group_score)
+             residual=r.residual_mm, score=r.group_score, primary=r.group_primary)
     print(1000.0 * float(np.median(ts)), flush=True)
 """
 
 
 def run_against(work: Path, old: Path, sizes: list[tuple[int, int]], real: Path | None, repeat: int,
-                rounds: int) -> None:
-    """The fast path of tree ``old`` against this one's, whole calls in alternating processes."""
+                rounds: int, *, fits: bool = False) -> None:
+    """The fast path of tree ``old`` against this one's, whole calls in alternating processes; ``fits``: as the page
+    calls it with a part model (``patches=False``) in a tree that has the option."""
     import subprocess
     import sys
 
@@ -480,20 +486,28 @@ def run_against(work: Path, old: Path, sizes: list[tuple[int, int]], real: Path 
     cpu: dict[str, list[list[float]]] = {"old": [], "new": []}
     for _ in range(rounds):
         for tag, tree in (("old", old.resolve()), ("new", here)):
-            res = subprocess.run([sys.executable, "-c", _WORKER, str(repeat), str(work / f"against_{tag}"), *files],
+            res = subprocess.run([sys.executable, "-c", _WORKER, str(repeat), str(work / f"against_{tag}"),
+                                  "fits" if fits else "all", *files],
                                  cwd=tree, env={**__import__("os").environ, "PYTHONPATH": str(tree)},
                                  check=True, capture_output=True, text=True)
             cpu[tag].append([float(v) for v in res.stdout.split()])
-    print(f"CPU ms per call, suspects(edge_surface=EdgeSurfaceParams()), zone = every valid pixel; old = {old}, "
-          f"new = {here}; median of {repeat} calls, each of {rounds} alternating rounds")
-    print(f"{'frame':34s} {'old':>15s} {'new':>15s} {'old/new':>7s} same")
+    print(f"CPU ms per call, suspects(edge_surface=EdgeSurfaceParams(){', patches=False' if fits else ''}), zone = "
+          f"every valid pixel; old = {old}, new = {here}; median of {repeat} calls, each of {rounds} alternating "
+          f"rounds; load {__import__('os').getloadavg()[0]:.1f}")
+    print(f"{'frame':34s} {'old':>15s} {'new':>15s} {'old/new':>7s} same  suspect px old/new, patch px old/new, "
+          f"patch groups old/new, groups old/new")
+    patch = DETECTORS.index("patch")
     for k, label in enumerate(labels):
         o = [r[k] for r in cpu["old"]]
         n = [r[k] for r in cpu["new"]]
         a, b = np.load(work / f"against_old.{k}.npz"), np.load(work / f"against_new.{k}.npz")
-        same = all(np.array_equal(a[f], b[f], equal_nan=True) for f in a.files)
+        same = all(np.array_equal(a[f], b[f], equal_nan=True) for f in a.files if f in b.files)
+        counts = [(int(z["mask"].sum()), int((z["detectors"] >> patch & 1).sum()),
+                   int((z["primary"] == patch).sum()) if "primary" in z.files else -1, int(z["groups"].max()))
+                  for z in (a, b)]
         print(f"{label:34s} {'/'.join(f'{v:.0f}' for v in o):>15s} {'/'.join(f'{v:.0f}' for v in n):>15s} "
-              f"{np.median(o) / np.median(n):7.2f} {'yes' if same else 'NO'}", flush=True)
+              f"{np.median(o) / np.median(n):7.2f} {'yes' if same else 'NO ':4s} "
+              + ", ".join(f"{x}/{y}" for x, y in zip(*counts)), flush=True)
 
 
 def run_parts(work: Path, old: Path, real: Path | None, repeat: int) -> None:
@@ -607,6 +621,8 @@ def main() -> None:
     ap.add_argument("--raytraced-seeds", default="5",
                     help="--speed: the seeds of the ray-traced frames, comma-separated (5: the default's)")
     ap.add_argument("--rounds", type=int, default=2, help="--against: alternating rounds")
+    ap.add_argument("--fits", action="store_true",
+                    help="--against: as the page calls it with a part model (patches=False where the tree has it)")
     ap.add_argument("--parts", action="store_true",
                     help="--against: the fifth round's parts, old / new in one process (frames of --work)")
     args = ap.parse_args()
@@ -617,7 +633,8 @@ def main() -> None:
             run_parts(args.work, args.against, args.real, args.repeat)
             return
         if args.against is not None:
-            run_against(args.work, args.against, sizes, args.real, args.repeat, args.rounds)  # type: ignore[arg-type]
+            run_against(args.work, args.against, sizes, args.real, args.repeat, args.rounds,  # type: ignore[arg-type]
+                        fits=args.fits)
             return
         run_speed(args.work, sizes, args.real, args.repeat)  # type: ignore[arg-type]
         return

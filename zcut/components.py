@@ -44,6 +44,7 @@ __all__ = [
     "cluster_outliers_reference",
     "cluster_stage",
     "find_root",
+    "union_roots",
     "speckle_outliers",
     "speckle_outliers_reference",
     "speckle_stage",
@@ -76,6 +77,12 @@ def _union(parent, i, j):  # type: ignore[no-untyped-def]  # numba kernel
         parent[b] = a
     elif b < a:
         parent[a] = b
+
+
+#: the union of the sets of ``i`` and ``j`` in the union-find ``parent`` (a numba kernel): the later root linked to
+#: the earlier one, so a set's root is its smallest member whatever the order of the unions and of the path
+#: compressions (:func:`find_root`); also :mod:`zcut.suspects.patches`' and :mod:`zcut.suspects.grouping`'s
+union_roots = _union
 
 
 @nb.njit(cache=True, nogil=True)

@@ -89,8 +89,8 @@ def test_suspects_group_the_patch_with_its_gap() -> None:
     h[20:30, 30:42] += 40.0
     xyz = xyz_of(h)
     zone = np.ones(h.shape, bool)
-    params = SuspectParams(a_max=1000.0)
-    assert 120 <= PATCH_RHO * params.a_max
+    params = SuspectParams(a_max=500.0)  # 120 px in front: larger than the floating cut's components (75 px)
+    assert params.floating_rho * params.a_max < 120 <= PATCH_RHO * params.a_max
     res = suspects(xyz, h, zone, params=params)
     bit = PATCH
     assert DETECTORS[-1] == "patch" and bit == 1 << (len(DETECTORS) - 1)

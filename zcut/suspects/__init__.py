@@ -25,7 +25,12 @@ thresholds taken from the frame's own noise:
 - ``above_rim`` — the points above the rim, which the pipeline's removal flags (given as a mask).
 - ``patch`` — **patches cut off by depth steps** (:mod:`~zcut.suspects.patches`): small pieces of the depth
   image that a depth step, not a hole, bounds on most of their border — a surface at another depth than all
-  the measured surface around it (a stereo matcher's wrong match over a whole patch).
+  the measured surface around it (a stereo matcher's wrong match over a whole patch). The small floating
+  components are the floating detector's: a pixel of a component its cut judges alone (one that clears
+  everything around it, smaller than ``FLOATING_OWNED_RHO`` · a_max, kept or not) is never a patch, so
+  ``plain_rho`` moves the union on its own (:mod:`~zcut.suspects.floating`). The labelling page runs the patch detector only without a part
+  model (``suspects(..., patches=False)`` where it fits one:
+  ``annotate/groups.py``).
 
 :func:`suspects` runs them all and groups the result for review: per detector, suspects within a
 merge radius form one group; the radius of the detector with most groups doubles until the frame
@@ -68,6 +73,7 @@ from .detectors import (
 from .floating import (
     FLOATING_CLEARANCE_SIGMAS,
     FLOATING_CLEARANCE_STEPS,
+    FLOATING_OWNED_RHO,
     FLOATING_STEP_SIGMAS,
     HOLE_MIN_NEIGHBOURS,
     floating_evidence,
@@ -134,6 +140,7 @@ __all__ = [
     "FILL_MIN_NEIGHBOURS",
     "FLOATING_CLEARANCE_SIGMAS",
     "FLOATING_CLEARANCE_STEPS",
+    "FLOATING_OWNED_RHO",
     "FLOATING_STEP_SIGMAS",
     "GAP_MAX_RADIUS",
     "GAP_MIN_PIXELS",

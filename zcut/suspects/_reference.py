@@ -38,6 +38,7 @@ from .detectors import (
 from .floating import (
     FLOATING_CLEARANCE_SIGMAS,
     FLOATING_CLEARANCE_STEPS,
+    FLOATING_OWNED_RHO,
     FLOATING_STEP_SIGMAS,
     floating_evidence,
 )
@@ -542,12 +543,17 @@ def group_suspects_reference(codes: np.ndarray, strength: np.ndarray, params: Su
 
 
 def floating_components_reference(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
-                        a_max: float, step: float, profile: NoiseProfile) -> tuple[Mask, np.ndarray]:
+                        a_max: float, step: float, profile: NoiseProfile, *,
+                        judged: np.ndarray | None = None) -> tuple[Mask, np.ndarray]:
     """The floating detector: z-cut components over the zone's whole height range (see module notes).
 
     Returns the mask and, on its pixels, their gap (mm) over the median height of the measured
-    pixels bordering their component (NaN elsewhere, or when none borders it).
+    pixels bordering their component (NaN elsewhere, or when none borders it). ``judged``: when given, set to
+    the pixels of the components the detector judges alone (those of its cut that clear everything around them and
+    are smaller than FLOATING_OWNED_RHO · a_max).
     """
+    if judged is not None:
+        judged[...] = False
     hz = np.where(zone, height_mm, np.nan)
     fin = np.isfinite(hz)
     gap = np.full(zone.shape, np.nan)
@@ -571,6 +577,8 @@ def floating_components_reference(height_mm: np.ndarray, zone: Mask, valid: Mask
     keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
     mask = np.concatenate([[False], keep])[lab] & zone
+    if judged is not None:
+        judged[...] = np.concatenate([[False], clear & (cut.areas < FLOATING_OWNED_RHO * a_max)])[lab] & zone
     if mask.any():
         kept = np.where(mask, lab, 0)
         border = ndimage.maximum_filter(kept, size=3, mode="constant")
@@ -589,6 +597,7 @@ def suspects_reference(
     params: SuspectParams,
     intrinsics: Intrinsics | None = None,
     edge_surface: EdgeSurfaceParams | None = None,
+    patches: bool = True,
 ) -> SuspectResult:
     """The previous :func:`zcut.suspects.suspects` (same parameters, same result; the oracle)."""
     if not isinstance(params, SuspectParams):
@@ -629,10 +638,13 @@ def suspects_reference(
         filled = _fill_blobs_previous(off, zone, valid & ~easy, iterations=params.fill_iterations)
         codes[filled & ~off] = RESIDUAL_UP
     rough = zone & ~(np.abs(residual) <= tau)  # in the zone: inf (no continuation) is rough
-    floating, floating_gap = floating_components_reference(h_zcut, zone, valid & ~easy, rough, params, a_max, step, profile)
+    judged = np.zeros((H, W), bool)  # the components the floating detector judges: its own, not patches
+    floating, floating_gap = floating_components_reference(h_zcut, zone, valid & ~easy, rough, params, a_max, step,
+                                                           profile, judged=judged)
     codes[floating] |= FLOATING
     codes[easy] |= ABOVE_RIM
-    codes[cut_off_patches_reference(context, jump, max_px=PATCH_RHO * a_max) & zone] |= PATCH
+    if patches:
+        codes[cut_off_patches_reference(context, jump, max_px=PATCH_RHO * a_max) & zone & ~judged] |= PATCH
     mask = codes > 0
 
     # gaps: a floating pixel's over the measured pixels bordering its component; a pixel off the

@@ -4,6 +4,14 @@
 whole height range; components smaller than ``floating_rho · a_max``, those larger than
 ``plain_rho · a_max`` only with evidence (:func:`floating_evidence`: holes inside, rough, hovering over
 measured points), and only those clearing everything around them.
+
+**The small floating components are this detector's.** A component of its cut that clears everything around it
+and is smaller than :data:`FLOATING_OWNED_RHO` · a_max is *judged* here alone, kept or not by its size
+(``plain_rho``) and its evidence: the patch detector (:mod:`zcut.suspects.patches`) takes none of its pixels
+(:func:`floating_components`' ``judged``). So ``plain_rho`` moves the suspects' union on its own (a small component
+this detector leaves is a patch too: a depth step bounds it on every side), and at the defaults (``plain_rho`` =
+:data:`FLOATING_OWNED_RHO`) the union is what both detectors flagged before: every judged component is kept by its
+size. The larger ones (up to ``floating_rho``) both detectors may flag: one without evidence stays a patch.
 """
 
 from __future__ import annotations
@@ -30,6 +38,10 @@ FLOATING_STEP_SIGMAS = 1.0
 # terrace one step above its surroundings: it floats, and it is the sensor's rounding)
 FLOATING_CLEARANCE_SIGMAS = 1.0
 FLOATING_CLEARANCE_STEPS = 1.5
+#: the floating components (clear of everything around them) smaller than this × a_max are the floating detector's
+#: alone: the patch detector takes none of their pixels (module notes). 0.07: the paper's nominal ρ_thr, the
+#: default ``plain_rho``
+FLOATING_OWNED_RHO = 0.07
 
 
 @numba.njit(cache=True)
@@ -302,16 +314,27 @@ def _kept_ring(lab, keep, zone, valid, h, n_max, mask):  # type: ignore[no-untyp
     return idx[:n], rl[:m], rh[:m]
 
 
+@numba.njit(cache=True)
+def _judged_pixels(lab, judged_lab, zone, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """``out = judged_lab[lab] & zone`` (``judged_lab`` per label 0..n, False at 0), in one pass."""
+    H, W = lab.shape
+    for i in range(H):
+        for j in range(W):
+            out[i, j] = judged_lab[lab[i, j]] and zone[i, j]
+
+
 def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: Mask, params: SuspectParams,
-                        a_max: float, step: float, profile: NoiseProfile, *, hz: np.ndarray | None = None
-                        ) -> tuple[Mask, np.ndarray, np.ndarray]:
+                        a_max: float, step: float, profile: NoiseProfile, *, hz: np.ndarray | None = None,
+                        judged: np.ndarray | None = None) -> tuple[Mask, np.ndarray, np.ndarray]:
     """The floating detector: z-cut components over the zone's whole height range (see module notes).
 
     ``height_mm`` C-contiguous float64. Returns the mask, the flat indices of its pixels (raster order)
     and there their gap (mm) over the median height of the measured pixels bordering their component
     (NaN when none borders it). Without frame-sized temporaries but the zone's heights and the mask; ``hz``:
     an (H, W) float64 C-contiguous array for the zone's heights (a caller's scratch; nothing returned is a view
-    of it), else a fresh one.
+    of it), else a fresh one. ``judged``: an (H, W) bool C-contiguous array, when given, set to the pixels of
+    the components the detector judges alone (those of its cut that clear everything around them and are smaller
+    than :data:`FLOATING_OWNED_RHO` · a_max, kept or not: the module notes).
     """
     H, W = zone.shape
     if hz is None:
@@ -319,6 +342,11 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     elif hz.shape != (H, W) or hz.dtype != np.float64 or not hz.flags.c_contiguous:
         raise InputShapeError(f"hz must be an (H, W) C-contiguous float64 array like zone {(H, W)}, "
                               f"got {describe_array(hz)}")
+    if judged is not None:
+        if judged.shape != (H, W) or judged.dtype != np.bool_ or not judged.flags.c_contiguous:
+            raise InputShapeError(f"judged must be an (H, W) C-contiguous bool array like zone {(H, W)}, "
+                                  f"got {describe_array(judged)}")
+        judged[...] = False
     lo, hi = _zone_heights(height_mm, zone, hz)
     none = (np.zeros(zone.shape, bool), np.zeros(0, np.int64), np.zeros(0))
     if not lo <= hi:  # no finite height in the zone
@@ -341,6 +369,9 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
                                    FLOATING_CLEARANCE_STEPS * profile.step_at(lowest))
     keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
+    owned = clear & (cut.areas < FLOATING_OWNED_RHO * a_max)
+    if judged is not None and owned.any():
+        _judged_pixels(lab, np.concatenate([[False], owned]), zone, judged)
     mask = np.empty((H, W), bool)
     idx, ring_lab, ring_h = _kept_ring(lab, np.concatenate([[False], keep]), zone, valid, height_mm,
                                        int(cut.areas.sum()), mask)

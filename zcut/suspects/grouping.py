@@ -9,6 +9,7 @@ import numba
 import numpy as np
 from scipy import ndimage
 
+from ..components import find_root, union_roots
 from ..params import SuspectParams
 from .detectors import DETECTORS, label_gather
 
@@ -37,22 +38,6 @@ SPARSE_MAX_RADIUS = 16
 
 
 @numba.njit(cache=True)
-def _union(parent, x, y):  # type: ignore[no-untyped-def]  # numba kernel
-    """Join the sets of ``x`` and ``y`` in ``parent`` (halving paths); the smaller root is the root, so a
-    set's root is its smallest member whatever the order of the unions."""
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    while parent[y] != y:
-        parent[y] = parent[parent[y]]
-        y = parent[y]
-    if x < y:
-        parent[y] = x
-    elif y < x:
-        parent[x] = y
-
-
-@numba.njit(cache=True)
 def _sparse_components(flat, W, r):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_components` of the pixels ``flat`` (raster order, one kind) without growing a mask.
 
@@ -60,8 +45,9 @@ def _sparse_components(flat, W, r):  # type: ignore[no-untyped-def]  # numba ker
     Chebyshev distance 2r + 1 of the next (their grown squares touch or overlap); ``ndimage.label``
     numbers the components by their first grown pixel in raster order: row max(top - r, 0), column
     max(c - r, 0) for c the leftmost column among the pixels whose square reaches that row.
-    The pixels are joined run by run. Returns the label (1..n) of each pixel, n and
-    the (n, 4) bounding boxes (row0, col0, row1, col1; ends exclusive) of the labels' pixels.
+    The pixels are joined run by run (the union-find of :mod:`zcut.components`: a component's root is its
+    first run). Returns the label (1..n) of each pixel, n and the (n, 4) bounding boxes (row0, col0, row1,
+    col1; ends exclusive) of the labels' pixels.
     """
     m = flat.size
     reach = 2 * r + 1
@@ -115,14 +101,11 @@ def _sparse_components(flat, W, r):  # type: ignore[no-untyped-def]  # numba ker
                 p += 1
             at[d] = p
             while p < e and c0[p] <= hi:
-                _union(parent, q, p)
+                union_roots(parent, q, p)
                 p += 1
     root = np.empty(nr, np.int64)  # per run: its component's root run, the first in raster order
     for q in range(nr):
-        x = q
-        while parent[x] != x:
-            x = parent[x]
-        root[q] = x
+        root[q] = find_root(parent, q)
     # the root run's row is the component's top one; the leftmost column of the rows the grown first row
     # reaches (r0 .. r0 + r) is the least first column of their runs
     left = np.full(nr, np.iinfo(np.int64).max)

@@ -20,6 +20,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from ..components import find_root, union_roots
 from ..errors import InputShapeError, describe_array
 from .detectors import _DC, _DR
 
@@ -44,15 +45,6 @@ def _check(h: np.ndarray, jump: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 @numba.njit(cache=True)
-def _find(parent, x):  # type: ignore[no-untyped-def]  # numba kernel
-    """The root of ``x`` (halving the path)."""
-    while parent[x] != x:
-        parent[x] = parent[parent[x]]
-        x = parent[x]
-    return x
-
-
-@numba.njit(cache=True)
 def _joined(h, jump, factor, p, q):  # type: ignore[no-untyped-def]  # numba kernel
     """Whether flat pixels p and q (both measured) are one piece (``np.minimum`` of the jumps: NaN if either is)."""
     a = jump[p]
@@ -64,7 +56,10 @@ def _joined(h, jump, factor, p, q):  # type: ignore[no-untyped-def]  # numba ker
 
 @numba.njit(cache=True)
 def _patch_kernel(h2, jump2, factor, max_px, min_step_share, out2):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`cut_off_patches_reference` into ``out2`` (bool, (H, W)); returns the number of patches."""
+    """:func:`cut_off_patches_reference` into ``out2`` (bool, (H, W)); returns the number of patches.
+
+    The pieces are a union-find over the pixels, :mod:`zcut.components`' (:func:`~zcut.components.union_roots`,
+    :func:`~zcut.components.find_root`): a piece's root is its first pixel in raster order."""
     H, W = h2.shape
     h = h2.reshape(-1)
     jump = jump2.reshape(-1)
@@ -77,27 +72,16 @@ def _patch_kernel(h2, jump2, factor, max_px, min_step_share, out2):  # type: ign
             if not np.isfinite(h[p]):
                 continue
             if j + 1 < W and np.isfinite(h[p + 1]) and _joined(h, jump, factor, p, p + 1):
-                a = _find(parent, p)
-                b = _find(parent, p + 1)
-                if a < b:
-                    parent[b] = a
-                elif b < a:
-                    parent[a] = b
+                union_roots(parent, p, p + 1)
             if i + 1 < H and np.isfinite(h[p + W]) and _joined(h, jump, factor, p, p + W):
-                a = _find(parent, p)
-                b = _find(parent, p + W)
-                if a < b:
-                    parent[b] = a
-                elif b < a:
-                    parent[a] = b
+                union_roots(parent, p, p + W)
     size = np.zeros(n, np.int64)
     steps = np.zeros(n, np.int64)
     open_ = np.zeros(n, np.int64)
     for p in range(n):
         if not np.isfinite(h[p]):
             continue
-        r = _find(parent, p)
-        parent[p] = r
+        r = find_root(parent, p)  # compresses the path: parent[p] = r
         size[r] += 1
     for i in range(H):
         for j in range(W):

@@ -492,6 +492,7 @@ def suspects(
     params: SuspectParams,
     intrinsics: Intrinsics | None = None,
     edge_surface: EdgeSurfaceParams | None = None,
+    patches: bool = True,
 ) -> SuspectResult:
     """Every suspect of one frame, from all the detectors, grouped for review.
 
@@ -523,6 +524,11 @@ def suspects(
         keeps its height over the points around it: a flat one of 4 × 4 pixels would be a surface
         of its own. The suspects themselves do not change; the groups follow the gaps (their
         strength classes).
+    patches : bool
+        Run the patch detector (:mod:`~zcut.suspects.patches`; default). It was built for the labelling page
+        without a part model (real scans, stereo scenes); where the page fits a part model its proposals come
+        from the fits and it calls this with False (``annotate/groups.py``): no pixel is a patch. The bank's
+        ``suspects`` method runs every detector.
 
     Returns
     -------
@@ -547,7 +553,7 @@ def suspects(
                                   f"the frame is {H}x{W}")
     try:
         with scratch_workspace().call() as ws:
-            return _suspects(a, h_img, zone, easy, params, edge_surface, ws)
+            return _suspects(a, h_img, zone, easy, params, edge_surface, ws, patches=bool(patches))
     finally:
         _bound_kept_frame_mm()
 
@@ -633,7 +639,7 @@ def release_frame_mm() -> None:
 
 
 def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: SuspectParams,
-              edge_surface: EdgeSurfaceParams | None, ws: SorWorkspace) -> SuspectResult:
+              edge_surface: EdgeSurfaceParams | None, ws: SorWorkspace, *, patches: bool) -> SuspectResult:
     """:func:`suspects` after its checks, its scratch images taken from ``ws``."""
     H, W = zone.shape
     valid, zone, easy, h_all, context = _prepare(a, zone, easy)
@@ -661,14 +667,22 @@ def _suspects(a: np.ndarray, h_img: np.ndarray, zone: Mask, easy: Mask, params: 
     judged_ctx = valid & ~easy
     filled = (fill_blobs(off, zone, judged_ctx, iterations=params.fill_iterations) if params.fill_iterations > 0
               else off)
-    # the patches cut off by depth steps, from the jumps (before the floating detector takes their array)
-    patch = cut_off_patches(context, jump, max_px=PATCH_RHO * a_max)
-    patch &= zone
+    # the patches cut off by depth steps, from the jumps (before the floating detector takes their array); none
+    # without the patch detector
+    if patches:
+        patch = cut_off_patches(context, jump, max_px=PATCH_RHO * a_max)
+        patch &= zone
+        judged: np.ndarray | None = np.empty((H, W), bool)
+    else:
+        patch, judged = np.zeros((H, W), bool), None
     rough = np.empty((H, W), bool)
     _rough(zone, residual, tau, rough)  # in the zone: inf (no continuation) is rough
     # the zone's heights in the jump's array (surface_residuals, its only reader, is done; the gate takes it later)
     floating, floating_at, floating_gap = floating_components(h_zcut, zone, judged_ctx, rough, params, a_max,
-                                                              step, profile, hz=ws.empty("jump", (H, W)))
+                                                              step, profile, hz=ws.empty("jump", (H, W)),
+                                                              judged=judged)
+    if judged is not None:  # the components the floating detector judges are its own (zcut.suspects.floating)
+        np.greater(patch, judged, out=patch)  # patch & ~judged
 
     # the codes, and the gaps: a floating pixel's over the measured pixels bordering its component; a
     # pixel off the surface, its residual (to the nearest continuation) or, with edge_surface, its distance
