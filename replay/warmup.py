@@ -45,7 +45,7 @@ def groups() -> list[tuple[str, Callable[[Path], None]]]:
 
         out.append((f"the filter bank and the suspects ({', '.join(m.name for m in rest)})", bank))
     out += [("the synthetic scenes, the readers and the whole pipeline", _pipeline),
-            ("the labelling page: the part model's fits (`explained`) and the review groups", _labelling),
+            ("the labelling page: the part model's fits (`explained`) and the page's suspects", _labelling),
             ("the ray-traced sensor", _raytraced)]
     return out
 
@@ -68,19 +68,20 @@ def _labelling(d: Path) -> None:
     """The kernels only the labelling page and the ``explained`` method run: the part model's fits, the
     sliver fits, the edge-aware surface of the review groups (135 of the 331 kernels the suite compiled were
     not compiled by the other groups, measured 2026-12-07; the fits and the groups' surfaces among them)."""
-    from annotate.groups import review_groups
     from replay.options import PipelineOptions
     from replay.synth.log import write_synthetic_log
+    from zcut.edge_surface import EdgeSurfaceParams
     from zcut.params import SuspectParams
+    from zcut.suspects import suspects
 
     log = d / "p.mcap"
     write_synthetic_log(log, kind="zinc_nuts", frames=1, seed=1, size=(200, 320))
     results = PipelineOptions(methods="zcut,explained").open_session(log).results()
     try:
         for frame, res in results:
-            valid = np.asarray(res.valid, bool)
-            review_groups(frame.xyz, frame.rgb, height_mm=res.height_mm, valid=valid, zone=res.zone & valid,
-                          above_rim=res.easy_outliers & valid, outliers=dict(res.outliers), params=SuspectParams())
+            valid = np.asarray(res.valid, bool)  # the page's suspects (annotate.groups.review_groups' call)
+            suspects(frame.xyz, res.height_mm, res.zone & valid, res.easy_outliers & valid, params=SuspectParams(),
+                     edge_surface=EdgeSurfaceParams()).release()
     finally:
         results.close()
 
