@@ -45,7 +45,7 @@ VALUES: dict[str, dict[str, str]] = {
     "window": {"min_inliers": "7", "rel_tolerance": "0.0005"},
     "mixed_pixel": {"min_angle_deg": "30.0"},
     "suspects": {"min_residual_mm": "5.0", "noise_k": "20.0", "jump_mm": "50.0", "below_min_directions": "1",
-                 "fill_iterations": "0", "floating_step_mm": "20.0", "floating_rho": "0.07", "plain_rho": "0.15",
+                 "fill_iterations": "0", "floating_step_mm": "20.0", "floating_rho": "0.07", "plain_rho": "0.0",
                  "evidence_holes": "0.0", "evidence_inconsistent": "1.0", "evidence_ring_valid": "0.0",
                  "a_max": "20.0", "merge_radius_px": "0", "max_groups": "5"},
     "stereo_uniqueness": {"uniqueness_ratio": "25"},
