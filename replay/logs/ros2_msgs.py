@@ -688,39 +688,37 @@ def _unpack_words(words, ox, oy, oz, xyz):  # type: ignore[no-untyped-def]  # nu
             out[i, j, 2] = _NAN if bad else z
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _point16(words, out, k):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
+    # point k of 4-word points into out's words 3k..3k+2, NaN, NaN, NaN if it is bad (a coordinate with an
+    # all-ones exponent, or all three zero); returns whether it was bad. Inlined into the two kernels below
+    x = words[4 * k]
+    y = words[4 * k + 1]
+    z = words[4 * k + 2]
+    bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
+    m = _ALL if bad else _NONE
+    out[3 * k] = (x & ~m) | (_NAN & m)
+    out[3 * k + 1] = (y & ~m) | (_NAN & m)
+    out[3 * k + 2] = (z & ~m) | (_NAN & m)
+    return bad
+
+
 @numba.njit(cache=True, nogil=True)
 def _unpack_words16(words, out):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     # _unpack_words for x, y, z at words 0, 1, 2 of 4-word points, rows back to back: ``words`` the points'
     # (4 n,) words, ``out`` the (3 n,) words of xyz. With the offsets and strides constants the compiler
     # vectorizes the loop (a blend instead of a branch): ~0.7 x the time of the general kernel's pass
     # (docs/performance.md, "The replay's read and hand-offs"); the same bits
-    n = out.shape[0] // 3
-    for k in range(n):
-        x = words[4 * k]
-        y = words[4 * k + 1]
-        z = words[4 * k + 2]
-        bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
-        m = _ALL if bad else _NONE
-        out[3 * k] = (x & ~m) | (_NAN & m)
-        out[3 * k + 1] = (y & ~m) | (_NAN & m)
-        out[3 * k + 2] = (z & ~m) | (_NAN & m)
+    for k in range(out.shape[0] // 3):
+        _point16(words, out, k)
 
 
 @numba.njit(cache=True, nogil=True)
 def _unpack_words16_valid(words, out, valid):  # type: ignore[no-untyped-def]  # numba kernel  # pragma: no cover - compiled
     # _unpack_words16, and ``valid`` the (n,) points' "not bad": after the unpacking a point's three coordinates
     # are finite exactly when it was not bad (a bad point is NaN, NaN, NaN; a kept one has no all-ones exponent)
-    n = out.shape[0] // 3
-    for k in range(n):
-        x = words[4 * k]
-        y = words[4 * k + 1]
-        z = words[4 * k + 2]
-        bad = ((x & _EXP) == _EXP) | ((y & _EXP) == _EXP) | ((z & _EXP) == _EXP) | (((x | y | z) & _ABS) == 0)
-        m = _ALL if bad else _NONE
-        out[3 * k] = (x & ~m) | (_NAN & m)
-        out[3 * k + 1] = (y & ~m) | (_NAN & m)
-        out[3 * k + 2] = (z & ~m) | (_NAN & m)
-        valid[k] = not bad
+    for k in range(out.shape[0] // 3):
+        valid[k] = not _point16(words, out, k)
 
 
 @numba.njit(cache=True, nogil=True)
