@@ -155,19 +155,16 @@ def _patch_keep(n, eq, size, steps, open_, max_px, min_step_share):  # type: ign
 
 
 def _patch_kernel(h2: np.ndarray, jump2: np.ndarray, factor: float, max_px: float, min_step_share: float,
-                  out2: np.ndarray, work: np.ndarray | None = None) -> int:
+                  out2: np.ndarray) -> int:
     """:func:`cut_off_patches_reference` into ``out2`` (bool, (H, W)); returns the number of patches.
 
     A two-pass labelling (:func:`_patch_labels`, :func:`_patch_counts`): the union-find is over the provisional
     labels, not the pixels, and each pair of neighbours is read once when the pieces' sides are counted (the
     union-find over every pixel and four sides a pixel before 2026-12-07c: docs/performance.md). The pieces, and
-    so the pixels flagged, do not depend on how they are numbered. ``work``: int32, at least 2 · H · W entries, for
-    the labels and their union-find (else fresh arrays)."""
+    so the pixels flagged, do not depend on how they are numbered."""
     H, W = h2.shape
-    if work is None:
-        work = np.empty(2 * H * W, np.int32)
-    lab = work[:H * W].reshape(H, W)
-    eq = work[H * W:2 * H * W]
+    lab = np.empty((H, W), np.int32)
+    eq = np.empty(H * W, np.int32)  # only its first n entries are written
     n = int(_patch_labels(h2, jump2, factor, lab, eq))
     size = np.zeros(n, np.int64)
     steps = np.zeros(n, np.int64)
@@ -179,7 +176,7 @@ def _patch_kernel(h2: np.ndarray, jump2: np.ndarray, factor: float, max_px: floa
 
 
 def cut_off_patches(height_mm: np.ndarray, jump_mm: np.ndarray, *, max_px: float, factor: float = PATCH_JUMP_FACTOR,
-                    min_step_share: float = PATCH_MIN_STEP_SHARE, work: np.ndarray | None = None) -> np.ndarray:
+                    min_step_share: float = PATCH_MIN_STEP_SHARE) -> np.ndarray:
     """The pixels of the patches cut off by depth steps (module docstring).
 
     Parameters
@@ -193,24 +190,15 @@ def cut_off_patches(height_mm: np.ndarray, jump_mm: np.ndarray, *, max_px: float
         The largest patch (pixels; :func:`zcut.suspects.suspects` gives :data:`PATCH_RHO` · a_max).
     factor, min_step_share : float
         :data:`PATCH_JUMP_FACTOR`, :data:`PATCH_MIN_STEP_SHARE`.
-    work : 1-D int32 ndarray, optional
-        At least 2 · H · W entries, C-contiguous, apart from the heights and jumps: the pieces' labels and their
-        union-find are kept there (a caller's scratch: :func:`zcut.suspects.suspects` gives the strength's
-        image, free at that step); nothing returned is a view of it. Default: fresh arrays.
 
     Returns
     -------
     (H, W) bool ndarray
     """
     h, jump = _check(height_mm, jump_mm)
-    H, W = h.shape
-    if work is not None and (work.ndim != 1 or work.dtype != np.int32 or not work.flags.c_contiguous
-                             or work.size < 2 * H * W or np.shares_memory(work, h) or np.shares_memory(work, jump)):
-        raise InputShapeError(f"work must be a C-contiguous 1-D int32 array of at least 2 x {H} x {W} entries, apart "
-                              f"from the heights and jumps, got {describe_array(work)}")
     out = np.zeros(h.shape, bool)
     if h.size:
-        _patch_kernel(h, jump, float(factor), float(max_px), float(min_step_share), out, work)
+        _patch_kernel(h, jump, float(factor), float(max_px), float(min_step_share), out)
     return out
 
 
