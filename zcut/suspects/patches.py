@@ -134,6 +134,7 @@ def _patch_counts(lab2, eq, n, size, steps, open_):  # type: ignore[no-untyped-d
 
 @numba.njit(cache=True)
 def _patch_out(lab2, size, out2):  # type: ignore[no-untyped-def]  # numba kernel
+    """Pass 3 of :func:`_patch_kernel`: ``out2`` set at the measured pixels whose root is a patch (``size`` > 0)."""
     lab = lab2.reshape(-1)
     out = out2.reshape(-1)
     for p in range(lab.size):
@@ -143,6 +144,8 @@ def _patch_out(lab2, size, out2):  # type: ignore[no-untyped-def]  # numba kerne
 
 @numba.njit(cache=True)
 def _patch_keep(n, eq, size, steps, open_, max_px, min_step_share):  # type: ignore[no-untyped-def]  # numba kernel
+    """The rule of the module docstring per root (the labels ``eq[r] == r``): a root that is no patch gets size -1;
+    returns the number of patches."""
     count = 0
     for r in range(n):
         if eq[r] != r:
