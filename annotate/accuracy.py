@@ -1266,13 +1266,14 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
                     said.add(w)
                     print(f"warning: frame {frame.index}: {w}", file=sys.stderr)
         if learned is not None:
-            from annotate.assistant import learned_mask
+            from annotate.assistant import learned_mask, page_fits
 
             seen = (frame.topic, frame.stamp_ns) in learned.frames  # trained on it: not scored
             if seen:
                 learned_seen.add(frame.index)
             fb = frame_accuracy(frame.index, frame.stamp_ns, {"learned": learned_mask(learned, frame, r,
-                                config=session.config)}, t.outliers, reviewed=t.reviewed, valid=valid,
+                                config=session.config, fits=page_fits(session))}, t.outliers,
+                                reviewed=t.reviewed, valid=valid,
                                 region=region & (not seen), kinds=t.kind, detectable=t.detectable,
                                 displacement_mm=shift, undecided=open_)
             fa.counts.update(fb.counts)

@@ -561,8 +561,27 @@ class Trainer:
 
 
 # --------------------------------------------------------------------------- offline: a log's labels
-def frame_groups(frame: Frame, result: FrameResult, *, config: PipelineConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(features, pixels, starts, group ids) of one replayed frame's review groups, as the page builds them."""
+def page_fits(session: ReplaySession) -> bool:
+    """Whether the labelling page fits a part model to the frames of ``session``'s log, as it decides it
+    (:func:`annotate.fits.fitter_for`, without reading the mesh): the config's ``explained.part_model``
+    (``--part-model FILE``), else the log's ``part_model.ply`` attachment. Its review groups then have no patch
+    detector (:func:`annotate.groups.review_groups`' ``fits``), and so must the groups the assistant is trained on
+    and the ``learned`` method reads (:func:`frame_groups`)."""
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+    from replay.pipeline.explained import NAME
+
+    p = session.config.bank.get(NAME)
+    if p is not None and p.part_model:
+        return True
+    return any(name == PART_MODEL_ATTACHMENT for name, _, _ in session.reader.attachments())
+
+
+def frame_groups(frame: Frame, result: FrameResult, *, config: PipelineConfig,
+                 fits: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(features, pixels, starts, group ids) of one replayed frame's review groups, as the page builds them.
+
+    ``fits``: the page fits a part model to the log's frames (:func:`page_fits`); its groups then have no patch
+    detector, as the page's (:func:`annotate.groups.review_groups`)."""
     from annotate.groups import review_groups
     from zcut.params import SuspectParams
 
@@ -571,7 +590,7 @@ def frame_groups(frame: Frame, result: FrameResult, *, config: PipelineConfig) -
                       zone=np.asarray(result.zone, bool) & valid,
                       above_rim=np.asarray(result.easy_outliers, bool) & valid,
                       outliers={k: np.asarray(v, bool) & valid for k, v in result.outliers.items()},
-                      params=SuspectParams(a_max=config.zcut.a_max))
+                      params=SuspectParams(a_max=config.zcut.a_max), fits=bool(fits))
     pix, starts = g.pixels()
     return g.features, pix, starts, g.ids
 
@@ -595,6 +614,7 @@ def training_set_of_log(session: ReplaySession, store: LabelStore, log: LogRecor
     from annotate.groups import group_targets
 
     who = list(annotators) if annotators else store.annotators(log)
+    fits = page_fits(session)  # the page's groups of this log (no patch detector with a part model)
     b = TrainingSetBuilder()
     results = session.results()
     try:
@@ -606,7 +626,7 @@ def training_set_of_log(session: ReplaySession, store: LabelStore, log: LogRecor
             labs = [(a, lab) for a, lab in found if lab is not None]
             if not labs:
                 continue
-            feats, pix, starts, _ = frame_groups(frame, result, config=session.config)
+            feats, pix, starts, _ = frame_groups(frame, result, config=session.config, fits=fits)
             b.add((frame.topic, frame.stamp_ns), feats,
                   [(a, *group_targets(pix, starts, lab.outliers, lab.reviewed)) for a, lab in labs])
             if progress is not None:
@@ -616,10 +636,12 @@ def training_set_of_log(session: ReplaySession, store: LabelStore, log: LogRecor
     return b.build()
 
 
-def learned_mask(model: Model, frame: Frame, result: FrameResult, *, config: PipelineConfig) -> np.ndarray:
+def learned_mask(model: Model, frame: Frame, result: FrameResult, *, config: PipelineConfig,
+                 fits: bool) -> np.ndarray:
     """(H, W) bool: the ``learned`` method's outliers on a frame — the pixels of the review groups the
-    model proposes as outliers (``p >= 0.5``)."""
-    feats, _, _, ids = frame_groups(frame, result, config=config)
+    model proposes as outliers (``p >= 0.5``); ``fits`` as in :func:`frame_groups` (:func:`page_fits` of the
+    frame's log)."""
+    feats, _, _, ids = frame_groups(frame, result, config=config, fits=fits)
     if feats.shape[0] == 0:
         return np.zeros(ids.shape, bool)
     out = np.concatenate(([False], model.predict(feats) >= 0.5))

@@ -34,7 +34,7 @@ def frames_of(work: Path, kinds, seeds, frames: int):
     """(kind, frame index, features, y) of every frame."""
     from page_helpers import synthetic_bin_model, synthetic_log
 
-    from annotate.assistant import frame_groups
+    from annotate.assistant import frame_groups, page_fits
     from annotate.groups import group_targets
     from replay.logs import layout
     from replay.pipeline.bin_model import load_bin_model
@@ -58,7 +58,8 @@ def frames_of(work: Path, kinds, seeds, frames: int):
                 results = session.results()
                 try:
                     for frame, result in results:
-                        feats, pix, starts, _ = frame_groups(frame, result, config=session.config)
+                        feats, pix, starts, _ = frame_groups(frame, result, config=session.config,
+                                                             fits=page_fits(session))
                         truth = frame.masks[layout.TRUTH_OUTLIERS]
                         _, share = group_targets(pix, starts, truth, np.ones_like(truth))
                         np.savez(cache / f"{log.stem}.{frame.index}.npz", X=feats, y=share >= 0.5)

@@ -1,7 +1,7 @@
 """Benchmark: where one call of :func:`zcut.suspects.suspects` spends its CPU, step by step, two trees in one process.
 
     PYTHONPATH=. .venv/bin/python bench/bench_suspects_steps.py --work W [--against OLD_TREE] [--real DIR]
-        [--repeat 5] [--frames GLOB]
+        [--repeat 5] [--frames GLOB] [--fits]
 
 The frames are the .npy files of ``--work`` (``bench_suspects.py --speed --against`` writes them: the
 synthetic 1920 × 1200 frames of several kinds, a ray-traced one, one with large invalid regions) and the
@@ -9,7 +9,8 @@ organized PCD scans of ``--real``; the call is the labelling page's (``edge_surf
 zone = every valid pixel). With ``--against``, that tree's ``zcut`` is loaded beside this one as the package
 ``zcut_old`` (its own numba caches) and its calls alternate with this tree's; the results of both are
 checked equal field by field (and against :func:`zcut.suspects.suspects_reference` of this tree once per
-frame with ``--reference``).
+frame with ``--reference``). ``--fits``: the call is the page's with a part model (``patches=False``: no patch
+detector, docs/labelling_real.md), in both trees.
 
 Each step is a function the call makes from Python (the module globals ``suspects()`` and its helpers
 look up are replaced by wrappers while timing): per step, the median over ``--repeat`` calls of its CPU
@@ -43,6 +44,7 @@ STEPS = (
     ("suspects.union", "_sigma_and_tau_medians", None),
     ("suspects.union", "surface_residuals", None),
     ("suspects.union", "fill_blobs", None),
+    ("suspects.union", "cut_off_patches", None),  # the patch detector (without a part model; 2026-12-07b)
     ("suspects.union", "_rough", None),
     ("suspects.union", "floating_components", None),
     ("suspects.floating", "_zone_heights", "floating_components"),
@@ -186,13 +188,17 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--reference", action="store_true", help="also check this tree against suspects_reference")
     ap.add_argument("--steps", action="store_true", help="print every step (default: the whole call only)")
+    ap.add_argument("--fits", action="store_true",
+                    help="call as the page does with a part model: patches=False (no patch detector)")
     args = ap.parse_args()
+    kw = {"patches": False} if args.fits else {}
 
     trees = [("new", load_tree(Path(__file__).resolve().parents[1], "zcut"))]
     if args.against is not None:
         trees.insert(0, ("old", load_tree(args.against.resolve(), "zcut_old")))
     steps = {tag: Steps(pkg.__name__) for tag, pkg in trees}
-    print(f"CPU ms per call (median of {args.repeat}, the trees alternating in one process); "
+    print(f"CPU ms per call{' (patches=False: the page with a part model)' if args.fits else ''} "
+          f"(median of {args.repeat}, the trees alternating in one process); "
           f"sys ms and minor page faults (k) beside; load average {' '.join(f'{v:.1f}' for v in __import__('os').getloadavg())}")
     for label, xyz in frames(args.work, args.frames, args.real):
         h = -1000.0 * xyz[..., 2].astype(np.float64)
@@ -203,7 +209,7 @@ def main() -> None:
             es = importlib.import_module(f"{pkg.__name__}.edge_surface").EdgeSurfaceParams()
             fn = importlib.import_module(f"{pkg.__name__}.suspects").suspects
             calls[tag] = (lambda fn=fn, sp=sp, es=es, xyz=xyz, h=h, zone=zone:
-                          _released(fn(xyz, h, zone, params=sp, edge_surface=es)))
+                          _released(fn(xyz, h, zone, params=sp, edge_surface=es, **kw)))
         results = {tag: calls[tag]() for tag, _ in trees}  # warm-up (numba's caches), and the check
         if args.against is not None and not same(results["old"], results["new"]):
             raise SystemExit(f"{label}: the two trees' results differ")
@@ -211,7 +217,7 @@ def main() -> None:
             here = trees[-1][1].__name__
             ref = importlib.import_module(f"{here}.suspects").suspects_reference(
                 xyz, h, zone, params=importlib.import_module(f"{here}.params").SuspectParams(),
-                edge_surface=importlib.import_module(f"{here}.edge_surface").EdgeSurfaceParams())
+                edge_surface=importlib.import_module(f"{here}.edge_surface").EdgeSurfaceParams(), **kw)
             if not same(ref, results["new"]):
                 raise SystemExit(f"{label}: this tree's result differs from suspects_reference")
         del results

@@ -22,7 +22,6 @@ import numpy as np
 
 from ..components import find_root, union_roots
 from ..errors import InputShapeError, describe_array
-from .detectors import _DC, _DR
 
 #: two measured 4-neighbours belong to one piece when their heights differ by at most this many times the
 #: smaller of their jumps
@@ -55,62 +54,127 @@ def _joined(h, jump, factor, p, q):  # type: ignore[no-untyped-def]  # numba ker
 
 
 @numba.njit(cache=True)
-def _patch_kernel(h2, jump2, factor, max_px, min_step_share, out2):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`cut_off_patches_reference` into ``out2`` (bool, (H, W)); returns the number of patches.
-
-    The pieces are a union-find over the pixels, :mod:`zcut.components`' (:func:`~zcut.components.union_roots`,
-    :func:`~zcut.components.find_root`): a piece's root is its first pixel in raster order."""
+def _patch_labels(h2, jump2, factor, lab2, eq):  # type: ignore[no-untyped-def]  # numba kernel
+    """Pass 1 of :func:`_patch_kernel`: each measured pixel's provisional label (int32, -1 where not measured), in
+    raster order, the label of its left neighbour when joined to it, else of its upper one, else a new one; two
+    labels met by one pixel are joined in the union-find ``eq`` (:func:`~zcut.components.union_roots`: the later
+    root linked to the earlier, so ``eq[k] <= k``). Returns the number of labels."""
     H, W = h2.shape
     h = h2.reshape(-1)
     jump = jump2.reshape(-1)
-    out = out2.reshape(-1)
-    n = H * W
-    parent = np.arange(n)
+    lab = lab2.reshape(-1)
+    n = 0
     for i in range(H):
         for j in range(W):
             p = i * W + j
             if not np.isfinite(h[p]):
+                lab[p] = -1
                 continue
-            if j + 1 < W and np.isfinite(h[p + 1]) and _joined(h, jump, factor, p, p + 1):
-                union_roots(parent, p, p + 1)
-            if i + 1 < H and np.isfinite(h[p + W]) and _joined(h, jump, factor, p, p + W):
-                union_roots(parent, p, p + W)
-    size = np.zeros(n, np.int64)
-    steps = np.zeros(n, np.int64)
-    open_ = np.zeros(n, np.int64)
-    for p in range(n):
-        if not np.isfinite(h[p]):
-            continue
-        r = find_root(parent, p)  # compresses the path: parent[p] = r
-        size[r] += 1
+            k = -1
+            if j > 0 and lab[p - 1] >= 0 and _joined(h, jump, factor, p - 1, p):
+                k = lab[p - 1]
+            if i > 0 and lab[p - W] >= 0 and _joined(h, jump, factor, p - W, p):
+                u = lab[p - W]
+                if k < 0:
+                    k = u
+                elif u != k:
+                    union_roots(eq, k, u)
+            if k < 0:
+                eq[n] = n
+                k = n
+                n += 1
+            lab[p] = k
+    return n
+
+
+@numba.njit(cache=True)
+def _patch_counts(lab2, eq, n, size, steps, open_):  # type: ignore[no-untyped-def]  # numba kernel
+    """Pass 2 of :func:`_patch_kernel`: every label's root (``eq[k] <= k``: resolved in order), each measured
+    pixel's label replaced by its piece's root, and per root its pixels, its sides against another piece (a
+    step; counted for both pieces at the later pixel of the pair) and its open sides (an unmeasured neighbour or
+    the image's border)."""
+    for k in range(n):
+        eq[k] = find_root(eq, k)  # its parent's root: eq[eq[k]], resolved already
+    H, W = lab2.shape
+    lab = lab2.reshape(-1)
     for i in range(H):
         for j in range(W):
             p = i * W + j
-            if not np.isfinite(h[p]):
+            k = lab[p]
+            if k < 0:
                 continue
-            r = parent[p]
-            for k in range(4):
-                i1 = i + _DR[k]  # right, left, down, up
-                j1 = j + _DC[k]
-                if i1 < 0 or i1 >= H or j1 < 0 or j1 >= W:
-                    open_[r] += 1
-                    continue
-                q = i1 * W + j1
-                if not np.isfinite(h[q]):
-                    open_[r] += 1
-                elif parent[q] != r:
+            r = eq[k]
+            lab[p] = r
+            size[r] += 1
+            o = 0
+            if j > 0:  # the left neighbour: its root is written already
+                q = lab[p - 1]
+                if q < 0:
+                    o += 1
+                elif q != r:
                     steps[r] += 1
+                    steps[q] += 1
+            else:
+                o += 1
+            if i > 0:  # the upper one likewise
+                q = lab[p - W]
+                if q < 0:
+                    o += 1
+                elif q != r:
+                    steps[r] += 1
+                    steps[q] += 1
+            else:
+                o += 1
+            if j + 1 >= W or lab[p + 1] < 0:  # right and lower: open here, a step at their own pixel
+                o += 1
+            if i + 1 >= H or lab[p + W] < 0:
+                o += 1
+            open_[r] += o
+
+
+@numba.njit(cache=True)
+def _patch_out(lab2, size, out2):  # type: ignore[no-untyped-def]  # numba kernel
+    """Pass 3 of :func:`_patch_kernel`: ``out2`` set at the measured pixels whose root is a patch (``size`` > 0)."""
+    lab = lab2.reshape(-1)
+    out = out2.reshape(-1)
+    for p in range(lab.size):
+        r = lab[p]
+        out[p] = r >= 0 and size[r] > 0
+
+
+@numba.njit(cache=True)
+def _patch_keep(n, eq, size, steps, open_, max_px, min_step_share):  # type: ignore[no-untyped-def]  # numba kernel
+    """The rule of the module docstring per root (the labels ``eq[r] == r``): a root that is no patch gets size -1;
+    returns the number of patches."""
     count = 0
-    for p in range(n):
-        r = parent[p]
-        if r != p or not np.isfinite(h[p]):
+    for r in range(n):
+        if eq[r] != r:
             continue
         if size[r] <= max_px and steps[r] > 0 and steps[r] >= min_step_share * (steps[r] + open_[r]):
             count += 1
         else:
             size[r] = -1  # not a patch
-    for p in range(n):
-        out[p] = np.isfinite(h[p]) and size[parent[p]] > 0
+    return count
+
+
+def _patch_kernel(h2: np.ndarray, jump2: np.ndarray, factor: float, max_px: float, min_step_share: float,
+                  out2: np.ndarray) -> int:
+    """:func:`cut_off_patches_reference` into ``out2`` (bool, (H, W)); returns the number of patches.
+
+    A two-pass labelling (:func:`_patch_labels`, :func:`_patch_counts`): the union-find is over the provisional
+    labels, not the pixels, and each pair of neighbours is read once when the pieces' sides are counted (the
+    union-find over every pixel and four sides a pixel before 2026-12-07c: docs/performance.md). The pieces, and
+    so the pixels flagged, do not depend on how they are numbered."""
+    H, W = h2.shape
+    lab = np.empty((H, W), np.int32)
+    eq = np.empty(H * W, np.int32)  # only its first n entries are written
+    n = int(_patch_labels(h2, jump2, factor, lab, eq))
+    size = np.zeros(n, np.int64)
+    steps = np.zeros(n, np.int64)
+    open_ = np.zeros(n, np.int64)
+    _patch_counts(lab, eq, n, size, steps, open_)
+    count = int(_patch_keep(n, eq, size, steps, open_, max_px, min_step_share))
+    _patch_out(lab, size, out2)
     return count
 
 
