@@ -1229,6 +1229,11 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
     learned_seen: set[int] = set()
     said: set[str] = set()
     results, unscored = [], []
+    page_fit = None  # whether the page fits a part model to this log's frames (annotate.assistant.page_fits)
+    if learned is not None:
+        from annotate.assistant import learned_mask, page_fits
+
+        page_fit = page_fits(session)
     for frame, r in frames:
         if r is None:
             assert methods is not None  # a results file's
@@ -1266,13 +1271,12 @@ def _score_frames(options: AccuracyOptions, frames: Iterable[tuple[Any, Any]], t
                     said.add(w)
                     print(f"warning: frame {frame.index}: {w}", file=sys.stderr)
         if learned is not None:
-            from annotate.assistant import learned_mask, page_fits
-
+            assert page_fit is not None
             seen = (frame.topic, frame.stamp_ns) in learned.frames  # trained on it: not scored
             if seen:
                 learned_seen.add(frame.index)
             fb = frame_accuracy(frame.index, frame.stamp_ns, {"learned": learned_mask(learned, frame, r,
-                                config=session.config, fits=page_fits(session))}, t.outliers,
+                                config=session.config, fits=page_fit)}, t.outliers,
                                 reviewed=t.reviewed, valid=valid,
                                 region=region & (not seen), kinds=t.kind, detectable=t.detectable,
                                 displacement_mm=shift, undecided=open_)
