@@ -771,9 +771,10 @@ def parse_slivers(text: str) -> list[tuple[float, ...]]:
             share = tuple(float(x) for x in f[4:])
         except ValueError:
             raise ValueError(f"--slivers takes N:M[:C:R[:S]], comma-separated, got {text!r}") from None
-        if len(f) not in (2, 4, 5) or ints[0] < 0 or min(ints[1:]) < 0 or ints[1] < 1 or (len(f) >= 4 and ints[3] < 1):
-            raise ValueError(f"--slivers takes N >= 0, M >= 1 (C >= 0, R >= 1, 0 <= S <= 1), got {text!r}")
-        if share and not 0.0 <= share[0] <= 1.0:
+        if len(f) not in (2, 4, 5):
+            raise ValueError(f"--slivers takes N:M[:C:R[:S]], comma-separated, got {text!r}")
+        if ints[0] < 0 or min(ints[1:]) < 0 or ints[1] < 1 or (len(f) >= 4 and ints[3] < 1) or (
+                share and not 0.0 <= share[0] <= 1.0):
             raise ValueError(f"--slivers takes N >= 0, M >= 1 (C >= 0, R >= 1, 0 <= S <= 1), got {text!r}")
         out.append((*ints, *share))
     if not out:
