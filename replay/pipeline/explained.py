@@ -107,7 +107,7 @@ SLIVER_COARSE = 2
 SLIVER_REFINE = 8
 #: ... and a pose whose silhouette the camera saw through on more than this share of its pixels is refused (free
 #: space: :attr:`zcut.sliver_fits.SliverParams.max_see_through`; docs/labelling.md, "Eighteenth round")
-SLIVER_MAX_SEE_THROUGH = 0.2
+SLIVER_MAX_SEE_THROUGH = 0.05
 
 
 @dataclass(frozen=True, slots=True)
