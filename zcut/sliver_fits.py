@@ -44,7 +44,7 @@ from zcut.errors import InputShapeError
 from zcut.fits import PartModel
 from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
 
-__all__ = ["SliverFit", "SliverParams", "expected_area_px", "fit_slivers", "see_through_share"]
+__all__ = ["SliverFit", "SliverParams", "fit_slivers", "see_through_share"]
 
 EIGHT = np.ones((3, 3), bool)
 EIGHT.setflags(write=False)
@@ -158,31 +158,6 @@ class SliverFit:
     share: float
     see_through: float
     pixels: np.ndarray
-
-
-def expected_area_px(extent_mm: float, footprint_mm: np.ndarray, where: np.ndarray) -> float:
-    """The part's expected image area (px) on a frame: the disc of its bounding sphere (radius ``extent_mm``, the
-    prepared model's :attr:`zcut.fits.model.PartModel.extent_mm`) seen at the median pixel footprint of the pixels
-    ``where``, π (extent / footprint)². NaN where no pixel of ``where`` has a positive finite footprint.
-
-    Parameters
-    ----------
-    extent_mm : float
-    footprint_mm : (H, W) float ndarray
-        Each pixel's footprint side at its depth (mm; :func:`zcut.explained.footprint_mm`), NaN where invalid.
-    where : (H, W) bool ndarray
-        The pixels whose footprints count (e.g. the method's zone).
-    """
-    footprint_mm = np.asarray(footprint_mm, np.float64)
-    where = np.asarray(where, bool)
-    if footprint_mm.shape != where.shape:
-        raise InputShapeError(f"expected_area_px: footprint_mm and where of one (H, W) shape expected, got "
-                              f"{footprint_mm.shape}, {where.shape}")
-    f = footprint_mm[where]
-    f = f[np.isfinite(f) & (f > 0)]
-    if not f.size:
-        return float("nan")
-    return float(np.pi * (float(extent_mm) / float(np.median(f))) ** 2)
 
 
 def _intrinsics(xyz_mm: np.ndarray, valid: np.ndarray) -> tuple[float, float, float, float] | None:

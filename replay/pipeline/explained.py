@@ -23,10 +23,9 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
   the bin nor the table; the pixels it is
   nearer to take it and the residuals are measured again (:attr:`ExplainedDetail.top_pieces`).
 - **Slivers no fit took** (:mod:`zcut.sliver_fits`, :data:`SLIVER_MIN_PX`): last, the part is posed on the zone's
-  unexplained regions of :func:`sliver_min_px` pixels or more (a share of the part's expected image area:
-  :data:`SLIVER_MIN_PX` at 1920 × 1200; at most :data:`SLIVER_MAX_REGIONS` of them, the largest first), guessed from
-  the fitted neighbours' orientations; a pose that enters a fit's solid or lies in front of what the camera saw is
-  refused. A sliver fit joins the fits as the pieces on top do
+  unexplained regions of :data:`SLIVER_MIN_PX` pixels or more (at most :data:`SLIVER_MAX_REGIONS` of them, the
+  largest first), guessed from the fitted neighbours' orientations; a pose that enters a fit's solid or lies in
+  front of what the camera saw is refused. A sliver fit joins the fits as the pieces on top do
   (:attr:`ExplainedDetail.slivers`); the labelling page's fits are these (annotate/fits.py), so its proposals stay
   the method's outliers.
 - **The bin**: the registered model cloud with its normals (the pipeline's bin model), posed by the
@@ -96,14 +95,8 @@ SAMPLE_PX = 20_000
 #: docs/labelling.md, "Third round: what the label holds beside the truth"); False: the fits as found
 TOP_PIECES = True
 #: the sliver pass (:mod:`zcut.sliver_fits`, :func:`_with_slivers`): the part posed on the zone's unexplained regions
-#: of this many pixels or more after the fits and the pieces on top (docs/labelling.md, "Fourteenth round") on a frame
-#: where the part's expected image area is :data:`SLIVER_REF_AREA_PX`; on another frame in proportion to the part's
-#: expected area there (:func:`sliver_min_px`: a share of the part's image, not a count of pixels); 0: off
+#: of this many pixels or more after the fits and the pieces on top (docs/labelling.md, "Fourteenth round"); 0: off
 SLIVER_MIN_PX = 150
-#: (px) the zinc nut's expected image area (:func:`zcut.sliver_fits.expected_area_px`) on the 1920 × 1200 frames of
-#: the synthetic logs, where :data:`SLIVER_MIN_PX` was measured (3,501–3,507 px on the ray-traced zinc nuts of seed 7751;
-#: docs/labelling.md, "Eighteenth round")
-SLIVER_REF_AREA_PX = 3500.0
 #: (mm) :func:`_join` tests the pixels whose nearest surface lies within this only near a new instance's box
 JOIN_SLAB_MM = 5.0
 #: ... at most this many of those regions tried, the largest first, and per region every guess a few wide ICP
@@ -402,14 +395,13 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
                   t: np.ndarray, prepared: Any, intr: Any, footprint: np.ndarray, judged: np.ndarray,
                   p: Any) -> tuple[tuple[PartFit, ...], Any, Any, int]:
     """(fits, surfaces, nearest, how many were added) with the slivers :func:`zcut.sliver_fits.fit_slivers` poses on
-    the zone's unexplained regions of :func:`sliver_min_px` (the part's expected image area at the zone's median
-    footprint, :func:`zcut.sliver_fits.expected_area_px`) to its ``max_px`` pixels (at most
+    the zone's unexplained regions of :data:`SLIVER_MIN_PX` to its ``max_px`` pixels (at most
     :data:`SLIVER_MAX_REGIONS`, the largest first), guessed from the fits' orientations, kept out of their solids and
     of the free space the camera saw. A sliver fit states the frame's median fit residual σ (the one its acceptance
     used) and joins the fits as the pieces on top do (:func:`_join`): the judged pixels nearer to it take it."""
     from zcut import explained as ex
     from zcut.fits import PartFit
-    from zcut.sliver_fits import SliverParams, expected_area_px, fit_slivers
+    from zcut.sliver_fits import SliverParams, fit_slivers
 
     err = ex.err_image(near, surfaces, footprint, floor_mm=p.err_floor_mm, where=zone.zone)
     un = ex.unexplained(near.dist_mm, err, p.k) & zone.zone
@@ -418,10 +410,9 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
     if not un.any() or not sig.size:
         return fits, surfaces, near, 0
     sigma = float(np.median(sig))
-    min_px = sliver_min_px(expected_area_px(prepared.extent_mm, footprint, zone.zone))
     found = fit_slivers(xyz, np.isfinite(xyz).all(axis=2), un, prepared, np.stack([f.pose for f in fits]),
                         sigma_mm=sigma, intrinsics=intr,
-                        params=SliverParams(min_px=min_px, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
+                        params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
                                             refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH, k=float(p.k),
                                             floor_mm=float(p.err_floor_mm)))
     if not found:
@@ -429,15 +420,6 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
     more = [PartFit(s.pose, sigma, s.share, s.pixels) for s in found]
     fits, surfaces, near = _join(xyz, zone, near, surfaces, fits, more, v, t, judged)
     return fits, surfaces, near, len(more)
-
-
-def sliver_min_px(area_px: float) -> int:
-    """The sliver pass's smallest region (px) on a frame where the part's expected image area is ``area_px``
-    (:func:`zcut.sliver_fits.expected_area_px`): :data:`SLIVER_MIN_PX` × ``area_px`` / :data:`SLIVER_REF_AREA_PX`,
-    rounded, at least 1; :data:`SLIVER_MIN_PX` itself where ``area_px`` is not a positive number."""
-    if not (np.isfinite(area_px) and area_px > 0):
-        return max(int(SLIVER_MIN_PX), 1)
-    return max(int(round(SLIVER_MIN_PX * float(area_px) / SLIVER_REF_AREA_PX)), 1)
 
 
 def _join(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: tuple[PartFit, ...], more: Sequence[PartFit],
