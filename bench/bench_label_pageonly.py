@@ -110,12 +110,13 @@ CONFIG: Path | None = None
 #: ``--fits-cache DIR`` (``--diagnose`` only): each frame's fits pickled there once and read back on later runs
 #: (:func:`fitted_frames`); None, fitted on every run.
 FITS_CACHE: Path | None = None
-#: ``--slivers N:M[:C:R],…`` (``--diagnose`` only): the sliver pass inside the method (``replay.pipeline.explained``
+#: ``--slivers N:M[:C:R[:S]],…`` (``--diagnose`` only): the sliver pass inside the method (``replay.pipeline.explained``
 #: ``SLIVER_MIN_PX`` = N, ``SLIVER_MAX_REGIONS`` = M, ``SLIVER_COARSE`` = C, ``SLIVER_REFINE`` = R, default 0 and
-#: 1: every guess iterated in full; N = 0: off) scored beside the rule as written, each variant's
+#: 1: every guess iterated in full; ``SLIVER_MAX_SEE_THROUGH`` = S, a share in [0, 1], default the tree's; N = 0: off)
+#: scored beside the rule as written, each variant's
 #: fits from the same frame and job, the frame's fits and pieces on top computed once (:func:`sliver_variants`); the
 #: fits cache is then written with the pass off. None: the tree's defaults (docs/labelling.md, "Fourteenth round").
-SLIVERS: list[tuple[int, ...]] | None = None
+SLIVERS: list[tuple[float, ...]] | None = None
 #: ``--no-causes`` (``--diagnose`` only): each frame scored without the scene's true surfaces (no cause split)
 NO_CAUSES = False
 
@@ -709,16 +710,18 @@ class shared_fits:
 
 
 def sliver_variants(log: Path, frame: Any, job: Any,
-                    variants: Sequence[tuple[int, ...]]) -> Iterator[tuple[str, Any, float, float]]:
+                    variants: Sequence[tuple[float, ...]]) -> Iterator[tuple[str, Any, float, float]]:
     """(name, the page's fits, their CPU-s, the sliver pass's CPU-s) of ``frame`` for each variant (:data:`SLIVERS`):
-    :func:`annotate.fits.fit_frame` with the pass's constants set (N, M, C, R), under :class:`shared_fits` (the
-    caller's): the fits and the pieces on top computed once for all."""
+    :func:`annotate.fits.fit_frame` with the pass's constants set (N, M, C, R, S; S the tree's where a variant gives
+    four fields), under :class:`shared_fits` (the caller's): the fits and the pieces on top computed once for all. A
+    variant's name is ``slivers`` and its fields joined by ``x`` (``slivers150x12x2x8``, ``slivers150x12x2x8x0.2``)."""
     import replay.pipeline.explained as rex
     from annotate.fits import fit_frame
 
     session = pipeline_options().open_session(log)
     bin_model = session.prepared.model if session.prepared is not None else None
-    saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex._with_slivers)
+    saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE,
+             rex.SLIVER_MAX_SEE_THROUGH, rex._with_slivers)
     spent = [0.0]
     inner = rex._with_slivers
 
@@ -732,14 +735,51 @@ def sliver_variants(log: Path, frame: Any, job: Any,
     rex._with_slivers = timed  # type: ignore[assignment]
     try:
         for v in variants:
-            n_px, m, c, r = (*v, 0, 1)[:4]
+            n_px, m, c, r = (int(x) for x in (*v, 0, 1)[:4])
             rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE = n_px, m, c, r
+            rex.SLIVER_MAX_SEE_THROUGH = float(v[4]) if len(v) > 4 else saved[4]
             spent[0] = 0.0
             t = time.process_time()
             ff = fit_frame(frame, job, session.config, bin_model)
-            yield "slivers" + "x".join(map(str, v)), ff, time.process_time() - t, spent[0]
+            yield sliver_name(v), ff, time.process_time() - t, spent[0]
     finally:
-        (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex._with_slivers) = saved
+        (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex.SLIVER_MAX_SEE_THROUGH,
+         rex._with_slivers) = saved
+
+
+def sliver_name(v: Sequence[float]) -> str:
+    """A ``--slivers`` variant's name: ``slivers`` and its fields joined by ``x``, the counts as integers, the share as
+    given (``(150, 12, 2, 8)`` → ``slivers150x12x2x8``, ``(150, 12, 2, 8, 0.2)`` → ``slivers150x12x2x8x0.2``)."""
+    return "slivers" + "x".join([*(str(int(x)) for x in v[:4]), *(f"{x:g}" for x in v[4:])])
+
+
+def parse_slivers(text: str) -> list[tuple[float, ...]]:
+    """``--slivers``' variants: ``N:M[:C:R[:S]]``, comma-separated (N, M, C, R integers, S a share in [0, 1]).
+
+    Raises
+    ------
+    ValueError
+        One line naming what it got.
+    """
+    out: list[tuple[float, ...]] = []
+    for v in text.split(","):
+        if not v:
+            continue
+        f = v.split(":")
+        try:
+            ints = tuple(int(x) for x in f[:4])
+            share = tuple(float(x) for x in f[4:])
+        except ValueError:
+            raise ValueError(f"--slivers takes N:M[:C:R[:S]], comma-separated, got {text!r}") from None
+        if len(f) not in (2, 4, 5):
+            raise ValueError(f"--slivers takes N:M[:C:R[:S]], comma-separated, got {text!r}")
+        if ints[0] < 0 or min(ints[1:]) < 0 or ints[1] < 1 or (len(f) >= 4 and ints[3] < 1) or (
+                share and not 0.0 <= share[0] <= 1.0):
+            raise ValueError(f"--slivers takes N >= 0, M >= 1 (C >= 0, R >= 1, 0 <= S <= 1), got {text!r}")
+        out.append((*ints, *share))
+    if not out:
+        raise ValueError(f"--slivers takes N:M[:C:R[:S]], comma-separated, got {text!r}")
+    return out
 
 
 def pipeline_options() -> Any:
@@ -1158,9 +1198,10 @@ def main() -> int:
                     "on the next ones (one fitting pass, several scorings; not with --seed-px or --config)")
     ap.add_argument("--compare", default="", metavar="BEFORE,AFTER",
                     help="two --diagnose --json files (two trees, the same logs): one table, before -> after")
-    ap.add_argument("--slivers", default="", metavar="N:M[:C:R],…",
+    ap.add_argument("--slivers", default="", metavar="N:M[:C:R[:S]],…",
                     help="with --diagnose: also score the sliver pass inside the method at N px, at most M regions "
-                    "(and C coarse ICP iterations for every guess, R guesses refined; default: all) (N = 0: off), "
+                    "(and C coarse ICP iterations for every guess, R guesses refined; default: all; S the largest "
+                    "share of a pose's silhouette seen through, default the tree's) (N = 0: off), "
                     "from the same frames; rows in JSON.slivers.json (docs/labelling.md, 'Fourteenth "
                     "round')")
     ap.add_argument("--no-causes", action="store_true",
@@ -1190,11 +1231,9 @@ def main() -> int:
         if not args.diagnose or args.seed_px is not None:
             raise SystemExit("error: --slivers is a --diagnose option, not with --seed-px")
         try:
-            SLIVERS = [tuple(int(x) for x in v.split(":")) for v in args.slivers.split(",") if v]
-        except ValueError:
-            raise SystemExit(f"error: --slivers takes N:M[:C:R], comma-separated, got {args.slivers!r}") from None
-        if not SLIVERS or any(len(v) not in (2, 4) or v[0] < 0 or min(v[1:]) < 0 or v[1] < 1 for v in SLIVERS):
-            raise SystemExit(f"error: --slivers takes N >= 0, M >= 1 (C >= 0, R >= 1), got {args.slivers!r}")
+            SLIVERS = parse_slivers(args.slivers)
+        except ValueError as e:
+            raise SystemExit(f"error: {e}") from None
         import replay.pipeline.explained as rex
 
         rex.SLIVER_MIN_PX = 0  # the rule as written and the fits cache: the method without the pass

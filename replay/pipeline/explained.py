@@ -105,6 +105,9 @@ JOIN_SLAB_MM = 5.0
 SLIVER_MAX_REGIONS = 12
 SLIVER_COARSE = 2
 SLIVER_REFINE = 8
+#: ... and a pose whose silhouette the camera saw through on more than this share of its pixels is refused (free
+#: space: :attr:`zcut.sliver_fits.SliverParams.max_see_through`; docs/labelling.md, "Eighteenth round")
+SLIVER_MAX_SEE_THROUGH = 0.05
 
 
 @dataclass(frozen=True, slots=True)
@@ -410,7 +413,8 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
     found = fit_slivers(xyz, np.isfinite(xyz).all(axis=2), un, prepared, np.stack([f.pose for f in fits]),
                         sigma_mm=sigma, intrinsics=intr,
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
-                                            refine=SLIVER_REFINE, k=float(p.k), floor_mm=float(p.err_floor_mm)))
+                                            refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH, k=float(p.k),
+                                            floor_mm=float(p.err_floor_mm)))
     if not found:
         return fits, surfaces, near, 0
     more = [PartFit(s.pose, sigma, s.share, s.pixels) for s in found]
