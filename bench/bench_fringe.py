@@ -14,7 +14,11 @@ method's run after the fits (each variant once a frame, the order alternating by
 of the method warmed its kernels) beside the CPU-s of the fits and the pieces on top. The truth is read only to
 score.
 
-    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_fringe.py LOG[,LOG…] --variants "main=MIXED_STEP:0,new=MIXED_STEP:1" --json F
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/bench_fringe.py LOG[,LOG…] --variants "main=CONST:0,new=" --json F
+
+CONST: a constant of :mod:`zcut.explained` the method reads when it runs (``main=CONST:0`` the tree with it at 0,
+``new=`` the tree as it is). The round of 2026-12-07c scored the pose refinement (``main=REFINE_STEPS:0,refine=``) in a
+checkout of its commit (docs/accuracy.md, "The fitted parts' fringes"); this tree does not keep it.
 """
 
 from __future__ import annotations
