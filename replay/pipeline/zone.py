@@ -86,25 +86,25 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
     if not finite.any():
         return np.zeros_like(zone)
     z_max = float(np.max(height_mm, where=finite, initial=-np.inf))  # no copy of the finite heights
-    threshold = z_max - zcut.n_levels * zcut.step
-    with np.errstate(invalid="ignore"):
-        return zone & (height_mm >= threshold)
+    return _at_or_above(height_mm, zone, z_max - zcut.n_levels * zcut.step)
 
 
-def sor_region_of_cut(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams, cut: CutResult
-                      ) -> tuple[np.ndarray, tuple[slice, slice] | None]:
-    """:func:`sor_region` ``(height_mm, zone, zcut)`` and its bounding box (:func:`zone_box`; None when the
-    region is empty) from the z-cut's own result on these heights with these parameters (``cut =
-    zcut.cuts.find_clusters(height_mm, params=zcut)``), bit for bit: ``cut.z_max`` is the largest finite height
-    (NaN when there is none, and the region is then empty), the value of :func:`sor_region`'s masked maximum
-    but for the sign of a zero, which no comparison tells apart (a threshold of -0.0 or +0.0 keeps the same
-    heights). What is left is the zone's pixels at or above the threshold, with their box, in one pass
-    (:func:`zcut.sor_region.region_at_or_above`): no pass over the heights for their finiteness and maximum."""
+def sor_region_of_cut(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams, cut: CutResult) -> np.ndarray:
+    """:func:`sor_region` ``(height_mm, zone, zcut)`` from the z-cut's own result on these heights with these
+    parameters (``cut = zcut.cuts.find_clusters(height_mm, params=zcut)``), bit for bit: ``cut.z_max`` is
+    the largest finite height (NaN when there is none, and the region is then empty), the value of
+    :func:`sor_region`'s masked maximum but for the sign of a zero, which no comparison tells apart (a
+    threshold of -0.0 or +0.0 keeps the same heights). What is left is the zone's pixels at or above the
+    threshold: no pass over the heights for their finiteness and maximum."""
     if not cut.z_max == cut.z_max:  # NaN: no finite height
-        return np.zeros_like(zone), None
-    from zcut.sor_region import region_at_or_above  # numba's kernel, loaded where used
+        return np.zeros_like(zone)
+    return _at_or_above(height_mm, zone, cut.z_max - zcut.n_levels * zcut.step)
 
-    return region_at_or_above(height_mm, zone, cut.z_max - zcut.n_levels * zcut.step)
+
+def _at_or_above(height_mm: np.ndarray, zone: np.ndarray, threshold: float) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = zone & (height_mm >= threshold)
+        return out
 
 
 def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool
@@ -134,17 +134,15 @@ def zone_box(zone: np.ndarray) -> tuple[slice, slice] | None:
     return slice(rows[0], rows[-1] + 1), slice(cols[0], cols[-1] + 1)
 
 
-def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, box: tuple[slice, slice] | None | bool = False,
-                 **kw: Any) -> np.ndarray:
+def _sor_on_zone(xyz: np.ndarray, zone: np.ndarray, *, whole: bool, **kw: Any) -> np.ndarray:
     """(H, W) bool: SOR outliers among the zone's points only (as on the frame with the rest set to
-    NaN: SOR's ``mask`` on the zone's bounding box, no masked copy). ``box``: the zone's bounding box when
-    known (:func:`zone_box`'s value, None for an empty zone), False to find it."""
+    NaN: SOR's ``mask`` on the zone's bounding box, no masked copy)."""
     from zcut.sor import sor_outliers  # numba's kernels, loaded where used
 
     out = np.zeros_like(zone)
     if whole:
         return np.asarray(sor_outliers(xyz, **kw) & zone)
-    sl = zone_box(zone) if box is False else box
+    sl = zone_box(zone)
     if sl is None:
         return out
     z = zone[sl]
@@ -244,27 +242,20 @@ def sor_judged(zone: Zone, config: SorConfig) -> np.ndarray:
     from the zone's z-cut (:meth:`Zone.cut`) when the z-cut takes these parameters (the same region)."""
     if config.sor.region == "zone":
         return zone.zone
-    return _top(zone, config)[0]
-
-
-def _top(zone: Zone, config: SorConfig) -> tuple[np.ndarray, tuple[slice, slice] | None | bool]:
-    """SOR's top region and its box (False: not known) from the zone's z-cut, else :func:`sor_region`."""
     from zcut.errors import ZcutError
 
     try:
         cut = zone.cut(config.zcut)
     except ZcutError:  # the z-cut refuses these parameters (e.g. too many levels): the region all the same
-        return sor_region(zone.height_mm, zone.zone, config.zcut), False
+        return sor_region(zone.height_mm, zone.zone, config.zcut)
     return sor_region_of_cut(zone.height_mm, zone.zone, config.zcut, cut)
 
 
 def sor_on_zone(frame: Frame, zone: Zone, config: SorConfig) -> np.ndarray:
     """(H, W) bool: SOR's outliers among the points it judges (easy outliers not included)."""
     s = config.sor
-    kw: dict[str, Any] = {"k": s.k, "std_ratio": s.std_ratio, "convention": s.convention}
-    if s.region == "zone":
-        return _sor_on_zone(frame.xyz, zone.zone, whole=zone.removal is None, **kw)
-    judged, box = _top(zone, config)  # the region and its box in one pass
-    return _sor_on_zone(frame.xyz, judged, whole=False, box=box, **kw)
+    return _sor_on_zone(frame.xyz, sor_judged(zone, config),
+                        whole=zone.removal is None and s.region == "zone", k=s.k, std_ratio=s.std_ratio,
+                        convention=s.convention)
 
 

@@ -17,7 +17,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from replay.pipeline.zone import Zone, sor_judged, sor_region, sor_region_of_cut, zone_box
+from replay.pipeline.zone import Zone, sor_judged, sor_region, sor_region_of_cut
 from zcut.cuts import MAX_STAGE_LEVELS, find_clusters
 from zcut.errors import ParameterError
 from zcut.params import ZCutParams
@@ -51,9 +51,8 @@ def _zone(z: np.ndarray, zone: np.ndarray) -> Zone:
 def _same_region(z: np.ndarray, zone: np.ndarray, params: ZCutParams = PARAMS) -> np.ndarray:
     cut = find_clusters(z, params=params)
     want = sor_region(z, zone, params)
-    got, box = sor_region_of_cut(z, zone, params, cut)
+    got = sor_region_of_cut(z, zone, params, cut)
     assert got.dtype == want.dtype == np.bool_ and np.array_equal(got, want)
-    assert box == zone_box(want)
     assert np.array_equal(_zone(z, zone).cut(params).outliers, cut.outliers)
     return want
 
