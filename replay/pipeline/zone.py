@@ -208,7 +208,8 @@ class Zone:
         shared: a frame's quantity, not one method's side effect: each caller alone gets the same result.
         Its arrays are not to be written (the callers read them; ``pixel_level`` is read-only). An error of
         the z-cut (e.g. too many levels) is raised to every caller and not kept."""
-        return self._cuts.get(params, lambda: _find_clusters(self.height_mm, params))
+        cut: CutResult = self._cuts.get(params, lambda: _find_clusters(self.height_mm, params))
+        return cut
 
 
 class _Memo:
