@@ -2,11 +2,70 @@
 
 from __future__ import annotations
 
+import threading
+from collections.abc import Callable, Iterator, Mapping, MutableMapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from zcut.cloud import Intrinsics
+
+
+class LazyArrays(MutableMapping[str, np.ndarray]):
+    """A frame's masks or codes by topic, each array decoded from its message the first time it is read.
+
+    A log's ground-truth masks and outlier kinds are read by the results file, the scoring and the
+    labelling, not by a replay's stages: :class:`~replay.logs.stream.FrameStream` checks each message when
+    it pairs the frame (a bad one skips the frame as before) and leaves its decoding (a pass over its
+    pixels) to the first reader of ``frame.masks[topic]``. A value is an array or a function returning it
+    (called once, under a lock: two threads reading the same topic get the same array); the message's
+    bytes it reads stay alive until then. Reading a value (``[]``, ``get``, ``items``, ``values``) decodes
+    it; the keys, ``in`` and ``len`` do not. Otherwise a dict of arrays (assignment, ``pop``, ``clear``,
+    ``==`` as dicts compare, a copy or pickle decodes every value).
+
+    Parameters
+    ----------
+    items : mapping of str to ndarray or to a function returning one
+    """
+
+    __slots__ = ("_items", "_lock")
+
+    def __init__(self, items: Mapping[str, np.ndarray | Callable[[], np.ndarray]] | None = None) -> None:
+        self._items: dict[str, np.ndarray | Callable[[], np.ndarray]] = dict(items or {})
+        self._lock = threading.Lock()
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        v = self._items[key]
+        if isinstance(v, np.ndarray):
+            return v
+        with self._lock:
+            v = self._items[key]
+            if not isinstance(v, np.ndarray):
+                v = v()
+                self._items[key] = v
+            return v
+
+    def __setitem__(self, key: str, value: np.ndarray) -> None:
+        self._items[key] = value
+
+    def __delitem__(self, key: str) -> None:
+        del self._items[key]
+
+    def __contains__(self, key: object) -> bool:
+        return key in self._items
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._items)
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    def __repr__(self) -> str:
+        return f"LazyArrays({dict(self.items())!r})"
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return LazyArrays, (dict(self.items()),)
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,11 +89,12 @@ class Frame:
         The cloud's topic.
     index : int
         0-based index of the frame in the log.
-    masks : dict[str, (H, W) bool ndarray]
-        mono8 mask topics with the same stamp (e.g. ``/ground_truth/outliers``), 255 -> True.
-    codes : dict[str, (H, W) uint8 ndarray]
+    masks : mutable mapping of str to (H, W) bool ndarray
+        mono8 mask topics with the same stamp (e.g. ``/ground_truth/outliers``), 255 -> True. A frame read
+        from a log holds a :class:`LazyArrays` (each mask decoded when first read), a made one a dict.
+    codes : mutable mapping of str to (H, W) uint8 ndarray
         mono8 topics whose values are codes (``replay.logs.layout.CODE_TOPICS``, e.g.
-        ``/ground_truth/outlier_kind``), as they are.
+        ``/ground_truth/outlier_kind``), as they are (a :class:`LazyArrays` too when read from a log).
     has_points : bool
         False for a frame of a results file written without its cloud (``LogReader(cloudless=True)``).
     truth_depth_m : (H, W) float32 ndarray or None
@@ -56,8 +116,8 @@ class Frame:
     intrinsics: Intrinsics | None
     topic: str
     index: int
-    masks: dict[str, np.ndarray] = field(default_factory=dict)
-    codes: dict[str, np.ndarray] = field(default_factory=dict)
+    masks: MutableMapping[str, np.ndarray] = field(default_factory=dict)
+    codes: MutableMapping[str, np.ndarray] = field(default_factory=dict)
     has_points: bool = True
     truth_depth_m: np.ndarray | None = None
     decoded_valid: tuple[np.ndarray, np.ndarray] | None = field(default=None, repr=False, compare=False)

@@ -836,17 +836,29 @@ def image_to_rgb(msg: ImageMsg, *, where: str, max_pixels: int | None = None, al
 def image_to_mask(msg: ImageMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty) -> np.ndarray:
     """(H, W) bool of a mask ``Image``: ``mono8`` (nonzero, 255 as zcut wrote it, -> True; into
     ``alloc``'s array) or zcut's bit-packed ``mono1`` (:data:`PACKED_MASK_ENCODING`; set bits -> True)."""
+    return mask_decoding(msg, where=where, max_pixels=max_pixels, alloc=alloc)()
+
+
+def mask_decoding(msg: ImageMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty
+                  ) -> Callable[[], np.ndarray]:
+    """:func:`image_to_mask` in two steps: its checks now (the same :class:`LogFormatError`), and its array
+    when the returned function is called (each call decodes the message's bytes anew; the function holds
+    a view of them, not a copy)."""
     if msg.encoding == PACKED_MASK_ENCODING:
         return _packed_mask(msg, where=where, max_pixels=max_pixels)
     if msg.encoding != "mono8":
         raise LogFormatError(f"{where}: a mask must be a mono8 or {PACKED_MASK_ENCODING} Image, got '{msg.encoding}'")
     px = _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0]
-    mask: np.ndarray = np.not_equal(px, 0, out=alloc(px.shape, np.bool_))
-    return mask
+
+    def decode() -> np.ndarray:
+        mask: np.ndarray = np.not_equal(px, 0, out=alloc(px.shape, np.bool_))
+        return mask
+
+    return decode
 
 
-def _packed_mask(msg: ImageMsg, *, where: str, max_pixels: int | None) -> np.ndarray:
-    """(H, W) bool of a ``mono1`` Image (sizes checked against the bytes present first)."""
+def _packed_mask(msg: ImageMsg, *, where: str, max_pixels: int | None) -> Callable[[], np.ndarray]:
+    """The (H, W) bool of a ``mono1`` Image, its sizes checked against the bytes present now."""
     h, w, step = msg.height, msg.width, msg.step
     if h < 1 or w < 1:
         raise LogFormatError(f"{where}: Image is empty (height {h}, width {w})")
@@ -856,8 +868,12 @@ def _packed_mask(msg: ImageMsg, *, where: str, max_pixels: int | None) -> np.nda
                        layout=_IMAGE_LAYOUT, where=where, max_pixels=max_pixels, encoding=PACKED_MASK_ENCODING)
     buf = np.frombuffer(msg.data, dtype=np.uint8, count=need)
     rows = np.lib.stride_tricks.as_strided(buf, shape=(h, row), strides=(step, 1), writeable=False)
-    mask: np.ndarray = np.unpackbits(rows, axis=1, count=w).view(np.bool_)
-    return mask
+
+    def decode() -> np.ndarray:
+        mask: np.ndarray = np.unpackbits(rows, axis=1, count=w).view(np.bool_)
+        return mask
+
+    return decode
 
 
 def mask_to_packed(mask: np.ndarray) -> np.ndarray:
@@ -868,12 +884,22 @@ def mask_to_packed(mask: np.ndarray) -> np.ndarray:
 def image_to_codes(msg: ImageMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty) -> np.ndarray:
     """(H, W) uint8 of a mono8 ``Image`` whose values are codes (e.g. an outlier-kind image), a copy
     (into ``alloc``'s array)."""
+    return codes_decoding(msg, where=where, max_pixels=max_pixels, alloc=alloc)()
+
+
+def codes_decoding(msg: ImageMsg, *, where: str, max_pixels: int | None = None, alloc: Alloc = np.empty
+                   ) -> Callable[[], np.ndarray]:
+    """:func:`image_to_codes` in two steps, as :func:`mask_decoding`: its checks now, its copy when called."""
     if msg.encoding != "mono8":
         raise LogFormatError(f"{where}: a code image must be a mono8 Image, got '{msg.encoding}'")
     px = _image_pixels(msg, where=where, max_pixels=max_pixels)[..., 0]
-    out = alloc(px.shape, np.uint8)
-    np.copyto(out, px)
-    return out
+
+    def decode() -> np.ndarray:
+        out = alloc(px.shape, np.uint8)
+        np.copyto(out, px)
+        return out
+
+    return decode
 
 
 def camera_info_to_intrinsics(msg: CameraInfoMsg, *, where: str) -> Intrinsics:

@@ -41,7 +41,7 @@ from replay.logs import layout
 from replay.logs import ros2_msgs as rm
 from replay.logs.damage import Damage, DamageKind, stamp_text
 from replay.logs.files import DEFAULT_MAX_MESSAGE_BYTES
-from replay.logs.frame import Frame
+from replay.logs.frame import Frame, LazyArrays
 from replay.logs.index import LogIndex
 from replay.logs.mcap_scan import (
     OP_CHANNEL,
@@ -550,8 +550,9 @@ class FrameStream(Iterator[Frame]):
         if self._decoded is not None and (self._decoded.index, self._decoded.stamp_ns) == (idx, p.stamp):
             frame, self._decoded = self._decoded, None  # the same bytes, already decoded and checked
             return frame
-        masks: dict[str, np.ndarray] = {}
-        codes: dict[str, np.ndarray] = {}
+        # the masks and codes are checked here and decoded when first read (LazyArrays): a replay's stages read none
+        masks: dict[str, np.ndarray | Callable[[], np.ndarray]] = {}
+        codes: dict[str, np.ndarray | Callable[[], np.ndarray]] = {}
         # every part is now of its topic's schema (_companion): an Image on the image and mask topics, a
         # CameraInfo on the camera info topic
         img = cast(rm.ImageMsg | None, parts.get(r.image_topic) if r.image_topic else None)
@@ -600,9 +601,9 @@ class FrameStream(Iterator[Frame]):
                             f"{mwhere}: mask is {m.height}x{m.width} but its cloud is {shape[0]}x{shape[1]}", topic)
             try:
                 if topic in layout.CODE_TOPICS:
-                    codes[topic] = rm.image_to_codes(m, where=mwhere, max_pixels=r.max_pixels, alloc=self._alloc)
+                    codes[topic] = rm.codes_decoding(m, where=mwhere, max_pixels=r.max_pixels, alloc=self._alloc)
                 else:
-                    masks[topic] = rm.image_to_mask(m, where=mwhere, max_pixels=r.max_pixels, alloc=self._alloc)
+                    masks[topic] = rm.mask_decoding(m, where=mwhere, max_pixels=r.max_pixels, alloc=self._alloc)
             except LogFormatError as e:
                 raise _Skip(_kind_of(e), str(e), topic) from None
         depth = None
@@ -612,7 +613,7 @@ class FrameStream(Iterator[Frame]):
             depth.flags.writeable = False
         return Frame(
             xyz=xyz, rgb=rgb, stamp_ns=cloud.stamp_ns, frame_id=cloud.frame_id,
-            intrinsics=intrinsics, topic=ctopic, index=idx, masks=masks, codes=codes,
+            intrinsics=intrinsics, topic=ctopic, index=idx, masks=LazyArrays(masks), codes=LazyArrays(codes),
             has_points=not r.cloudless, truth_depth_m=depth,
             decoded_valid=(xyz, valid) if valid is not None else None,
         )

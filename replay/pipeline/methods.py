@@ -146,9 +146,7 @@ Config = Any
 
 
 def _run_zcut(frame: Frame, zone: Zone, config: Config) -> MethodOutput:
-    from zcut.cuts import find_clusters
-
-    cut = find_clusters(zone.height_mm, params=config.zcut)
+    cut = zone.cut(config.zcut)  # find_clusters on the zone's heights, shared with SOR's top region
     return MethodOutput(cut.outliers & zone.zone, cut)
 
 

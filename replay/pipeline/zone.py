@@ -8,8 +8,9 @@ engine that calls it. No I/O, no viewer.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
@@ -19,6 +20,7 @@ if TYPE_CHECKING:  # the records' field types only: importing this module loads 
     from zcut.bin_check import BinCheck
     from zcut.bin_model import BinModel
     from zcut.binmask import BinMaskResult
+    from zcut.cuts import CutResult
     from zcut.params import SorParams, ZCutParams
     from zcut.registration import RegistrationResult
     from zcut.removal import RemovalResult
@@ -84,9 +86,25 @@ def sor_region(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams) -> np.
     if not finite.any():
         return np.zeros_like(zone)
     z_max = float(np.max(height_mm, where=finite, initial=-np.inf))  # no copy of the finite heights
-    threshold = z_max - zcut.n_levels * zcut.step
+    return _at_or_above(height_mm, zone, z_max - zcut.n_levels * zcut.step)
+
+
+def sor_region_of_cut(height_mm: np.ndarray, zone: np.ndarray, zcut: ZCutParams, cut: CutResult) -> np.ndarray:
+    """:func:`sor_region` ``(height_mm, zone, zcut)`` from the z-cut's own result on these heights with these
+    parameters (``cut = zcut.cuts.find_clusters(height_mm, params=zcut)``), bit for bit: ``cut.z_max`` is
+    the largest finite height (NaN when there is none, and the region is then empty), the value of
+    :func:`sor_region`'s masked maximum but for the sign of a zero, which no comparison tells apart (a
+    threshold of -0.0 or +0.0 keeps the same heights). What is left is the zone's pixels at or above the
+    threshold: no pass over the heights for their finiteness and maximum."""
+    if not cut.z_max == cut.z_max:  # NaN: no finite height
+        return np.zeros_like(zone)
+    return _at_or_above(height_mm, zone, cut.z_max - zcut.n_levels * zcut.step)
+
+
+def _at_or_above(height_mm: np.ndarray, zone: np.ndarray, threshold: float) -> np.ndarray:
     with np.errstate(invalid="ignore"):
-        return zone & (height_mm >= threshold)
+        out: np.ndarray = zone & (height_mm >= threshold)
+        return out
 
 
 def zone_crop(xyz: np.ndarray, zone: np.ndarray, *, whole: bool
@@ -182,13 +200,56 @@ class Zone:
     timings: dict[str, float]
     warnings: tuple[str, ...]
     bin_check: BinCheck | None = None
+    _cuts: _Memo = field(default_factory=lambda: _Memo(), init=False, repr=False, compare=False)
+
+    def cut(self, params: ZCutParams) -> CutResult:
+        """The z-cut of this zone's heights, ``zcut.cuts.find_clusters(height_mm, params=params)``, computed
+        once per parameter set by whichever caller asks first (the method ``zcut``, SOR's top region) and
+        shared: a frame's quantity, not one method's side effect: each caller alone gets the same result.
+        Its arrays are not to be written (the callers read them; ``pixel_level`` is read-only). An error of
+        the z-cut (e.g. too many levels) is raised to every caller and not kept."""
+        cut: CutResult = self._cuts.get(params, lambda: _find_clusters(self.height_mm, params))
+        return cut
+
+
+class _Memo:
+    """A zone's shared results by parameter set, each computed once (under a lock: the first caller
+    computes, a concurrent one waits for it)."""
+
+    __slots__ = ("_lock", "_got")
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._got: dict[Any, Any] = {}
+
+    def __reduce__(self) -> tuple[type[_Memo], tuple[()]]:  # a copied or pickled zone computes its own again
+        return _Memo, ()
+
+    def get(self, key: Any, make: Any) -> Any:
+        with self._lock:
+            if key not in self._got:
+                self._got[key] = make()
+            return self._got[key]
+
+
+def _find_clusters(height_mm: np.ndarray, params: ZCutParams) -> CutResult:
+    from zcut.cuts import find_clusters  # numba's kernels, loaded where used
+
+    return find_clusters(height_mm, params=params)
 
 
 def sor_judged(zone: Zone, config: SorConfig) -> np.ndarray:
-    """(H, W) bool: the points SOR judges for ``config.sor.region``."""
+    """(H, W) bool: the points SOR judges for ``config.sor.region``: with ``"top"``, :func:`sor_region`,
+    from the zone's z-cut (:meth:`Zone.cut`) when the z-cut takes these parameters (the same region)."""
     if config.sor.region == "zone":
         return zone.zone
-    return sor_region(zone.height_mm, zone.zone, config.zcut)
+    from zcut.errors import ZcutError
+
+    try:
+        cut = zone.cut(config.zcut)
+    except ZcutError:  # the z-cut refuses these parameters (e.g. too many levels): the region all the same
+        return sor_region(zone.height_mm, zone.zone, config.zcut)
+    return sor_region_of_cut(zone.height_mm, zone.zone, config.zcut, cut)
 
 
 def sor_on_zone(frame: Frame, zone: Zone, config: SorConfig) -> np.ndarray:
