@@ -567,13 +567,11 @@ def page_fits(session: ReplaySession) -> bool:
     (``--part-model FILE``), else the log's ``part_model.ply`` attachment. Its review groups then have no patch
     detector (:func:`annotate.groups.review_groups`' ``fits``), and so must the groups the assistant is trained on
     and the ``learned`` method reads (:func:`frame_groups`)."""
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+    from replay.logs.part_model import carries_part_model
     from replay.pipeline.explained import NAME
 
     p = session.config.bank.get(NAME)
-    if p is not None and p.part_model:
-        return True
-    return any(name == PART_MODEL_ATTACHMENT for name, _, _ in session.reader.attachments())
+    return bool(p is not None and p.part_model) or carries_part_model(session.reader)
 
 
 def frame_groups(frame: Frame, result: FrameResult, *, config: PipelineConfig,

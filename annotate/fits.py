@@ -678,13 +678,13 @@ def fitter_for(replay: Any, log_path: str | Path, points: Any) -> tuple[Fitter |
     ParameterError, LogFormatError
         One line: a part model that is not a readable mesh.
     """
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT, carries_part_model
     from replay.pipeline.explained import NAME, part_model, with_part_model
 
     resolved = replay.resolved
     p = resolved.config.bank[NAME]
     if not p.part_model:
-        if not any(name == PART_MODEL_ATTACHMENT for name, _, _ in replay.reader.attachments()):
+        if not carries_part_model(replay.reader):
             return None, (f"no part model: the page shows no fits (give --part-model FILE; the log carries no "
                           f"{PART_MODEL_ATTACHMENT})")
         resolved = with_part_model(resolved, log_path)

@@ -410,10 +410,10 @@ def stereo_log(work: Path, scenes: list[str]) -> Path:
 
 
 def has_part_model(log: Path) -> bool:
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+    from replay.logs.part_model import carries_part_model
     from replay.logs.reader import LogReader
 
-    return any(name == PART_MODEL_ATTACHMENT for name, _, _ in LogReader(log).attachments())
+    return carries_part_model(LogReader(log))
 
 
 # --------------------------------------------------------------------------------------------------------------

@@ -15,6 +15,7 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -22,11 +23,20 @@ from replay.errors import LogFormatError
 from replay.logs import layout
 from zcut.errors import ParameterError
 
+if TYPE_CHECKING:
+    from replay.logs.reader import LogReader
+
 PART_MODEL_ATTACHMENT = "part_model.ply"
 PART_MODEL_MEDIA_TYPE = layout.BIN_MODEL_MEDIA_TYPE  # application/x-ply
 #: the units a part model may be stated in, and their size in metres
 UNITS = {"mm": 1e-3, "m": 1.0}
 _UNIT_COMMENT = re.compile(rb"^comment\b.*\bunit:\s*(mm|m)\b", re.MULTILINE)
+
+
+def carries_part_model(reader: LogReader) -> bool:
+    """Whether the log ``reader`` reads carries a part model (a :data:`PART_MODEL_ATTACHMENT` attachment; its
+    attachment index only, no mesh read)."""
+    return any(name == PART_MODEL_ATTACHMENT for name, _, _ in reader.attachments())
 
 
 @dataclass(frozen=True, slots=True)

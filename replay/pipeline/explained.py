@@ -216,12 +216,12 @@ def with_part_model(resolved: Any, path: str | os.PathLike[str], *, unit: str = 
 def with_log_part_model(resolved: Any, log: str | os.PathLike[str], reader: LogReader) -> Any:
     """``resolved`` with ``explained.part_model`` set to ``log`` when the config runs ``explained``,
     names no part model and the log carries a ``part_model.ply`` attachment; else as it is."""
-    from replay.logs.part_model import PART_MODEL_ATTACHMENT
+    from replay.logs.part_model import PART_MODEL_ATTACHMENT, carries_part_model
 
     config = resolved.config
     if NAME not in config.base_methods or config.bank[NAME].part_model:
         return resolved
-    if not any(name == PART_MODEL_ATTACHMENT for name, _, _ in reader.attachments()):
+    if not carries_part_model(reader):
         return resolved
     return with_part_model(resolved, log, note=f"explained: the part model is the log's {PART_MODEL_ATTACHMENT}")
 
