@@ -128,6 +128,43 @@ def score_log(log: Path, scenes: list[str], wanted: set[int] | None, methods: st
     return rows
 
 
+def served_check(log: Path, wanted: set[int] | None, methods: str | None) -> list[dict]:
+    """The groups the page's own server serves (``annotate.server.open_page`` with ``methods`` as ``zcut annotate
+    --methods`` gives them, without a part model as a stereo log has none; each frame's bundle read over HTTP) against
+    the groups this bench computes: the same ``group_ids`` image and table, frame by frame."""
+    import tempfile
+
+    sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "bench")]
+    from annotate_helpers import LiveServer
+    from page_helpers import get_bundle
+
+    from annotate.server import open_page
+    from replay.options import PipelineOptions
+    from replay.pipeline import config as cfg
+
+    computed = {frame.index: g for frame, _r, _z, _v, g, _ in frames_of(log, wanted, methods)}
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        srv = LiveServer(open_page(log, Path(tmp) / "labels.db", annotator="bench",
+                                   overrides=cfg.cli_layer(methods=methods) if methods else None,
+                                   choose_bin_model=PipelineOptions().model_chooser()))
+        try:
+            assert srv.page.catalogue.wait_until_done(3600)
+            for index, g in computed.items():
+                header, arrays = get_bundle(srv.base, srv.token, index)
+                ids = arrays["groups"].astype(np.int64)
+                table = np.asarray(arrays["group_table"], np.float64)
+                same = bool(np.array_equal(ids, g.ids) and table.shape == g.table.shape
+                            and np.allclose(table, g.table.astype(np.float32), equal_nan=True))
+                out.append({"frame": index, "served_groups": int(header["n_groups"]), "groups": g.n,
+                            "methods": header["methods"], "same": same})
+                print(f"served frame {index}: {header['n_groups']} groups (methods {', '.join(header['methods'])}), "
+                      f"computed {g.n}: {'the same' if same else 'DIFFERENT'}", flush=True)
+        finally:
+            srv.stop()
+    return out
+
+
 # ---------------------------------------------------------------------------------------------------------------------
 # --explore: smooth patches on the tuning scenes
 
@@ -222,6 +259,8 @@ def main(argv: list[str] | None = None) -> int:
                     "default: the config's); with --against also --old-methods")
     ap.add_argument("--old-methods", default=None, help="--against: the old tree's page runs these (default: --methods)")
     ap.add_argument("--old-log", type=Path, default=None, help="--against: the old tree scores this log (default: --log)")
+    ap.add_argument("--served", action="store_true", help="check the page's own server serves the groups computed "
+                    "here (with --methods), frame by frame; nothing else")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -233,6 +272,11 @@ def main(argv: list[str] | None = None) -> int:
         if a.json:
             a.json.write_text(json.dumps(rows, indent=1))
         return 0
+    if a.served:
+        rows = served_check(a.log, wanted, a.methods or None)
+        if a.json:
+            a.json.write_text(json.dumps(rows, indent=1))
+        return 0 if all(r["same"] for r in rows) else 1
     if a.child:
         print(json.dumps(score_log(a.log, scenes, wanted, a.methods or None)))
         return 0
