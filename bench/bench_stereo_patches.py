@@ -16,7 +16,10 @@ image cut wherever neighbours differ by more than ``c`` × the suspects' jump) o
 that no group holds — the cue's measure on the tuning scenes before anything is built.
 
     PYTHONPATH=. .venv/bin/python bench/bench_stereo_patches.py --log STEREO.mcap --scenes A,B,C [--frames 0,1]
-        [--against /tmp/real2-old] [--explore] [--json F]
+        [--against /tmp/real2-old [--old-log OLD.mcap] [--old-methods LIST]] [--methods LIST] [--explore] [--json F]
+
+``--methods`` runs the page's filter methods as ``zcut annotate --methods`` does (e.g. the stereo matcher's own
+post-filters recorded in the log, ``stereo_uniqueness,stereo_speckle,stereo_lr``: docs/labelling_real.md, h/real3).
 """
 
 from __future__ import annotations
@@ -69,13 +72,15 @@ def limit_of(ids: np.ndarray, truth: np.ndarray, region: np.ndarray) -> float:
     return iou(best & region, truth)
 
 
-def frames_of(log: Path, wanted: set[int] | None) -> Any:
-    """(frame, result, page zone, valid, groups) of each frame wanted, as the page prepares them."""
+def frames_of(log: Path, wanted: set[int] | None, methods: str | None = None) -> Any:
+    """(frame, result, page zone, valid, groups) of each frame wanted, as the page prepares them (``methods``: the
+    filter methods the page runs, as ``zcut annotate --methods`` gives them; None: the config's, zcut and sor)."""
     from annotate.groups import review_groups
+    from replay.pipeline import config as cfg
     from replay.pipeline.session import ReplaySession
     from zcut.params import SuspectParams
 
-    session = ReplaySession.open(log)
+    session = ReplaySession.open(log, overrides=cfg.cli_layer(methods=methods) if methods else None)
     params = SuspectParams(a_max=session.config.zcut.a_max)
     results = session.results()
     try:
@@ -95,12 +100,12 @@ def frames_of(log: Path, wanted: set[int] | None) -> Any:
         results.close()
 
 
-def score_log(log: Path, scenes: list[str], wanted: set[int] | None) -> list[dict]:
+def score_log(log: Path, scenes: list[str], wanted: set[int] | None, methods: str | None = None) -> list[dict]:
     from annotate.groups import GCOL
     from replay.logs import layout
 
     rows = []
-    for frame, _r, zone, valid, g, cpu in frames_of(log, wanted):
+    for frame, _r, zone, valid, g, cpu in frames_of(log, wanted, methods):
         unknown = frame.masks.get(layout.TRUTH_UNKNOWN)
         scored = valid if unknown is None else valid & ~unknown
         region = zone & scored
@@ -121,6 +126,43 @@ def score_log(log: Path, scenes: list[str], wanted: set[int] | None) -> list[dic
                      "patch_groups": len(patch_groups), "patch_outlier_groups": patch_out,
                      "has_truth": truth is not None})
     return rows
+
+
+def served_check(log: Path, wanted: set[int] | None, methods: str | None) -> list[dict]:
+    """The groups the page's own server serves (``annotate.server.open_page`` with ``methods`` as ``zcut annotate
+    --methods`` gives them, without a part model as a stereo log has none; each frame's bundle read over HTTP) against
+    the groups this bench computes: the same ``group_ids`` image and table, frame by frame."""
+    import tempfile
+
+    sys.path[:0] = [str(ROOT / "tests"), str(ROOT / "bench")]
+    from annotate_helpers import LiveServer
+    from page_helpers import get_bundle
+
+    from annotate.server import open_page
+    from replay.options import PipelineOptions
+    from replay.pipeline import config as cfg
+
+    computed = {frame.index: g for frame, _r, _z, _v, g, _ in frames_of(log, wanted, methods)}
+    out = []
+    with tempfile.TemporaryDirectory() as tmp:
+        srv = LiveServer(open_page(log, Path(tmp) / "labels.db", annotator="bench",
+                                   overrides=cfg.cli_layer(methods=methods) if methods else None,
+                                   choose_bin_model=PipelineOptions().model_chooser()))
+        try:
+            assert srv.page.catalogue.wait_until_done(3600)
+            for index, g in computed.items():
+                header, arrays = get_bundle(srv.base, srv.token, index)
+                ids = arrays["groups"].astype(np.int64)
+                table = np.asarray(arrays["group_table"], np.float64)
+                same = bool(np.array_equal(ids, g.ids) and table.shape == g.table.shape
+                            and np.allclose(table, g.table.astype(np.float32), equal_nan=True))
+                out.append({"frame": index, "served_groups": int(header["n_groups"]), "groups": g.n,
+                            "methods": header["methods"], "same": same})
+                print(f"served frame {index}: {header['n_groups']} groups (methods {', '.join(header['methods'])}), "
+                      f"computed {g.n}: {'the same' if same else 'DIFFERENT'}", flush=True)
+        finally:
+            srv.stop()
+    return out
 
 
 # ---------------------------------------------------------------------------------------------------------------------
@@ -213,6 +255,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--c", default="0.5,1,2", help="--explore: multiples of the suspects' jump")
     ap.add_argument("--sizes", default="100,400,1600,6400,25600", help="--explore: largest patch sizes (px)")
     ap.add_argument("--shares", default="0,0.5,0.8", help="--explore: least share of a patch's border that is a step")
+    ap.add_argument("--methods", default="", help="the filter methods the page runs (zcut annotate --methods; "
+                    "default: the config's); with --against also --old-methods")
+    ap.add_argument("--old-methods", default=None, help="--against: the old tree's page runs these (default: --methods)")
+    ap.add_argument("--old-log", type=Path, default=None, help="--against: the old tree scores this log (default: --log)")
+    ap.add_argument("--served", action="store_true", help="check the page's own server serves the groups computed "
+                    "here (with --methods), frame by frame; nothing else")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -224,14 +272,22 @@ def main(argv: list[str] | None = None) -> int:
         if a.json:
             a.json.write_text(json.dumps(rows, indent=1))
         return 0
+    if a.served:
+        rows = served_check(a.log, wanted, a.methods or None)
+        if a.json:
+            a.json.write_text(json.dumps(rows, indent=1))
+        return 0 if all(r["same"] for r in rows) else 1
     if a.child:
-        print(json.dumps(score_log(a.log, scenes, wanted)))
+        print(json.dumps(score_log(a.log, scenes, wanted, a.methods or None)))
         return 0
     trees = [("new", ROOT)] + ([("old", a.against.resolve())] if a.against else [])
     res: dict[str, list[dict]] = {}
     for name, tree in trees:
-        cmd = [sys.executable, str(Path(__file__).resolve()), "--child", "--log", str(a.log), "--scenes", a.scenes,
-               "--frames", a.frames]
+        old = name == "old"
+        methods = a.old_methods if old and a.old_methods is not None else a.methods
+        log = a.old_log if old and a.old_log is not None else a.log
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--child", "--log", str(log), "--scenes", a.scenes,
+               "--frames", a.frames, "--methods", methods]
         env = {**os.environ, "PYTHONPATH": str(tree)}
         t0 = time.time()
         p = subprocess.run(cmd, capture_output=True, text=True, cwd=tree, env=env)

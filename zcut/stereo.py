@@ -19,7 +19,11 @@ smooth as a right one, is not detectable by a filter that sees only the cloud.
 Pure functions on arrays (no file I/O); the matcher wraps OpenCV's StereoSGBM / StereoBM with their
 own post-filters off unless asked for. Each post-filter is also an outlier filter to score
 (:func:`rejected_pixels`): the pixels a run of the matcher matches and the same run with the
-post-filter on (at the strength of a :data:`POST_FILTERS` params class) leaves unmatched.
+post-filter on (at the strength of a :data:`POST_FILTERS` params class) leaves unmatched — except the
+left-right check, which is done here (:func:`left_right_rejected`): OpenCV's own (``disp12MaxDiff``)
+compares SGBM's disparity with the right view's winner of the *same* aggregated costs, and invalidated
+no pixel on any of the ten Middlebury scenes (docs/filters.md, docs/labelling_real.md); the right view's
+disparity is instead matched on its own (the mirrored pair), as a left-right check of two matchers is.
 """
 
 from __future__ import annotations
@@ -44,7 +48,11 @@ __all__ = [
     "depth_tolerance_mm",
     "detectable_outliers",
     "disparity_to_depth_mm",
+    "left_right_disagree",
+    "left_right_disagree_reference",
+    "left_right_rejected",
     "match",
+    "match_right",
     "rejected_pixels",
     "stereo_truth",
     "xyz_from_depth_mm",
@@ -223,10 +231,102 @@ def match(left: np.ndarray, right: np.ndarray, params: MatcherParams) -> np.ndar
     return disp
 
 
+def match_right(left: np.ndarray, right: np.ndarray, params: MatcherParams) -> np.ndarray:
+    """Disparity of the right image of a rectified pair: the matcher run on the mirrored pair (the right image,
+    mirrored, as the left one), mirrored back. A right pixel ``x`` with disparity ``d`` sees the point of the
+    left pixel ``x + d``. Same inputs and output as :func:`match`."""
+    lt, rt = _image(left, "left"), _image(right, "right")
+    if lt.shape != rt.shape:
+        raise InputShapeError(f"left and right must have one shape, got {lt.shape} and {rt.shape}")
+    return np.ascontiguousarray(match(rt[:, ::-1], lt[:, ::-1], params)[:, ::-1])
+
+
+def _disparities(disp_left: object, disp_right: object, max_diff: object) -> tuple[np.ndarray, np.ndarray, float]:
+    dl = np.asarray(disp_left)
+    dr = np.asarray(disp_right)
+    if dl.ndim != 2 or dl.dtype.kind != "f":
+        raise InputShapeError(f"disp_left must be an (H, W) float array, got {describe_array(dl)}")
+    if dr.shape != dl.shape or dr.dtype.kind != "f":
+        raise InputShapeError(f"disp_right must be a float array of disp_left's shape {dl.shape}, got {describe_array(dr)}")
+    if isinstance(max_diff, (bool, np.bool_)) or not isinstance(max_diff, (int, float, np.integer, np.floating)) \
+            or not (np.isfinite(max_diff) and max_diff >= 0):
+        raise ParameterError(f"max_diff must be a finite number >= 0, got {max_diff!r}")
+    return dl, dr, float(max_diff)
+
+
+def left_right_disagree(disp_left: np.ndarray, disp_right: np.ndarray, max_diff: float) -> np.ndarray:
+    """The matched left pixels whose disparity the right view does not confirm.
+
+    A left pixel ``(v, u)`` with a finite disparity ``d`` sees the right pixel ``u2 = floor(u − d + 0.5)``; it
+    disagrees when ``u2`` lies outside the image, the right view has no disparity there, or
+    ``|d − disp_right[v, u2]| > max_diff``.
+
+    Parameters
+    ----------
+    disp_left, disp_right : (H, W) float ndarray
+        The left view's disparity (:func:`match`) and the right one's (:func:`match_right`), px, NaN unmatched.
+    max_diff : float
+        The largest difference kept (px, >= 0).
+
+    Returns
+    -------
+    (H, W) bool ndarray
+        False where ``disp_left`` is not finite. Equal to :func:`left_right_disagree_reference` bit for bit.
+    """
+    dl, dr, tol = _disparities(disp_left, disp_right, max_diff)
+    H, W = dl.shape
+    out = np.zeros((H, W), bool)
+    if dl.size == 0:
+        return out
+    ok = np.isfinite(dl)
+    v, u = np.nonzero(ok)
+    d = dl[v, u].astype(np.float64)
+    u2 = np.floor(u - d + 0.5)
+    inside = (u2 >= 0) & (u2 < W)
+    d2 = np.full(d.shape, np.nan)
+    d2[inside] = dr[v[inside], u2[inside].astype(np.int64)]
+    with np.errstate(invalid="ignore"):
+        bad = ~inside | ~np.isfinite(d2) | (np.abs(d - d2) > tol)
+    out[v, u] = bad
+    return out
+
+
+def left_right_disagree_reference(disp_left: np.ndarray, disp_right: np.ndarray, max_diff: float) -> np.ndarray:
+    """:func:`left_right_disagree` pixel by pixel, in plain Python."""
+    dl, dr, tol = _disparities(disp_left, disp_right, max_diff)
+    H, W = dl.shape
+    out = np.zeros((H, W), bool)
+    for v in range(H):
+        for u in range(W):
+            d = float(dl[v, u])
+            if d != d or d in (float("inf"), float("-inf")):
+                continue
+            u2 = int(np.floor(u - d + 0.5))
+            if u2 < 0 or u2 >= W:
+                out[v, u] = True
+                continue
+            d2 = float(dr[v, u2])
+            out[v, u] = (d2 != d2 or d2 in (float("inf"), float("-inf"))) or abs(d - d2) > tol
+    return out
+
+
+def left_right_rejected(left: np.ndarray, right: np.ndarray, params: MatcherParams, max_diff: int, *,
+                        matched: np.ndarray | None = None) -> np.ndarray:
+    """The pixels the left-right check invalidates: matched by ``params`` and not confirmed by the right view's
+    own match (:func:`match_right` with the same ``params``; :func:`left_right_disagree` within ``max_diff`` px).
+
+    ``matched``: ``isfinite(match(left, right, params))`` when already computed (the left disparity is matched
+    again either way: its values are needed). Returns an (H, W) bool ndarray."""
+    dl = match(left, right, params)
+    out = left_right_disagree(dl, match_right(left, right, params), max_diff)
+    return out if matched is None else out & np.asarray(matched, dtype=bool)
+
+
 def rejected_pixels(left: np.ndarray, right: np.ndarray, params: MatcherParams, post: PostFilter, *,
                     matched: np.ndarray | None = None) -> np.ndarray:
     """The pixels one of the matcher's post-filters invalidates: matched by ``params``, unmatched by
-    ``params`` with ``post``'s settings (the same run, that filter on at that strength).
+    ``params`` with ``post``'s settings (the same run, that filter on at that strength); for the left-right
+    check (:class:`~zcut.params.StereoLrParams`) the pixels :func:`left_right_rejected` gives.
 
     Parameters
     ----------
@@ -252,6 +352,8 @@ def rejected_pixels(left: np.ndarray, right: np.ndarray, params: MatcherParams, 
         raise ParameterError(f"post must be one of {', '.join(c.__name__ for c in POST_FILTERS.values())}, got {post!r}")
     if isinstance(post, StereoTextureParams) and params.matcher != "bm":
         raise ParameterError(f"the texture threshold is a setting of StereoBM (matcher bm), not of {params.matcher}")
+    if isinstance(post, StereoLrParams):
+        return left_right_rejected(left, right, params, post.disp12_max_diff, matched=matched)
     if matched is None:
         matched = np.isfinite(match(left, right, params))
     on = dataclasses.replace(params, **dataclasses.asdict(post))
