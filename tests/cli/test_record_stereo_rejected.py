@@ -18,7 +18,7 @@ from stereo_helpers import motorcycle, write_scene
 
 from replay.logs import layout
 from replay.logs.reader import LogReader
-from zcut.stereo import POST_FILTERS
+from zcut.stereo import POST_FILTERS, left_right_disagree_reference
 
 POST = "stereo_uniqueness,stereo_lr,stereo_speckle"
 
@@ -53,6 +53,20 @@ def _opencv(scene, *, bm: bool = False, **kw) -> np.ndarray:
     return raw >= 0
 
 
+def _disparity(scene, *, mirrored: bool = False) -> np.ndarray:
+    """SGBM's disparity (px, NaN unmatched) of the left view, or of the right view (the mirrored pair), built here."""
+    left, right = scene["left"], scene["right"]
+    if mirrored:
+        left, right = right[:, ::-1], left[:, ::-1]
+    m = cv2.StereoSGBM.create(minDisparity=0, numDisparities=scene["ndisp"], blockSize=5, P1=8 * 3 * 25, P2=32 * 3 * 25,
+                              disp12MaxDiff=-1, preFilterCap=63, uniquenessRatio=0, speckleWindowSize=0,
+                              speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM)
+    raw = m.compute(np.ascontiguousarray(left), np.ascontiguousarray(right))
+    d = raw.astype(np.float32) / np.float32(16.0)
+    d[raw < 0] = np.nan
+    return d[:, ::-1] if mirrored else d
+
+
 @pytest.fixture(scope="module")
 def log(scene_dir, tmp_path_factory):
     """Three frames (one scene three times: an interval needs three), two strengths of each filter."""
@@ -68,11 +82,14 @@ def test_recorded_rejections_equal_opencv_run_here(scene, log):
     reader = LogReader(log)
     frames = list(reader.frames())
     plain = _opencv(scene)
+    # the left-right check: the left view's disparity against the right view's own match (zcut.stereo's check;
+    # OpenCV's disp12MaxDiff invalidates no pixel on these scenes)
+    left_d, right_d = _disparity(scene), _disparity(scene, mirrored=True)
     want = {
         "uniqueness_ratio_10": plain & ~_opencv(scene, uniquenessRatio=10),
         "uniqueness_ratio_25": plain & ~_opencv(scene, uniquenessRatio=25),
-        "disp12_max_diff_0": plain & ~_opencv(scene, disp12MaxDiff=0),
-        "disp12_max_diff_1": plain & ~_opencv(scene, disp12MaxDiff=1),
+        "disp12_max_diff_0": plain & left_right_disagree_reference(left_d, right_d, 0),
+        "disp12_max_diff_1": plain & left_right_disagree_reference(left_d, right_d, 1),
         "speckle_window_100_speckle_range_2": plain & ~_opencv(scene, speckleWindowSize=100, speckleRange=2),
         "speckle_window_400_speckle_range_1": plain & ~_opencv(scene, speckleWindowSize=400, speckleRange=1),
     }
