@@ -61,3 +61,44 @@ def test_thread_groups_and_places(bench):
     q.close()
     assert place.startswith("session.py:produce:"), place  # the frame reader's loop, in zcut's code
     assert "`f = next(frames)`" in place and place.endswith(" <- wait"), place  # blocked in threading's wait
+
+
+def test_wait_kinds(bench):
+    # blocked in threading's code below a line of zcut's: a wait at that line
+    assert bench.wait_kind("session.py:_frame_result:640 `location = future.result()` <- wait") == (
+        "waits at session.py:_frame_result `location = future.result()`")
+    # a C call that blocks without a Python frame of its own (SimpleQueue.get): a wait too
+    assert bench.wait_kind("session.py:prefetched:330 `kind, item = q.get()`") == (
+        "waits at session.py:prefetched `kind, item = q.get()`")
+    # off the CPU at any other line of zcut's code: the GIL or a native call
+    assert bench.wait_kind("zone.py:_at_or_above:90 `out = zone & (h >= t)`") == (
+        "GIL or native call at zone.py:_at_or_above `out = zone & (h >= t)`")
+    assert bench.wait_kind("thread.py:_worker:89") == "idle in its pool"
+    assert bench.wait_kind("native") == "native"
+
+
+def _sample(dt, *rows):
+    return (0.0, dt, [(tid, run, queued, True, place) for tid, run, queued, place in rows])
+
+
+def test_idle_causes_credits_the_missing_core_to_the_workers_states(bench):
+    names = {"1": "MainThread", "2": "zcut-frame_0", "3": "zcut-frame_1"}
+    wait = "session.py:_frame_result:640 `location = future.result()` <- wait"
+    records = [
+        # both workers ran the whole 10 ms: no idle, 10 ms of wall on two cores
+        _sample(0.010, (2, 0.010, 0.0, "x"), (3, 0.010, 0.0, "x"), (1, 0.0, 0.0, "thread.py:_worker:89")),
+        # one ran, the other waited for its location: one core idle for 10 ms
+        _sample(0.010, (2, 0.010, 0.0, "x"), (3, 0.0, 0.0, wait), (1, 0.0, 0.0, "thread.py:_worker:89")),
+        # a loaded machine: both ready all the time but each ran half of it (waited on a run queue): on quiet
+        # cores 5 ms, none idle
+        _sample(0.010, (2, 0.005, 0.005, "x"), (3, 0.005, 0.005, "x")),
+    ]
+    got = bench.idle_causes(records, names, cores=2)
+    assert got["wall_s"] == pytest.approx(0.010 + 0.010 + 0.005)
+    assert got["idle_s"] == pytest.approx(0.010)
+    assert got["idle_share"] == pytest.approx(0.010 / (2 * 0.025))
+    assert got["by"] == {"1 frame worker(s) busy; the other(s): waits at session.py:_frame_result "
+                         "`location = future.result()`": pytest.approx(0.010)}
+    # nothing ran at all: the sample keeps its length and both cores idle
+    got = bench.idle_causes([_sample(0.004, (2, 0.0, 0.0, wait), (3, 0.0, 0.0, wait))], names, cores=2)
+    assert got["idle_s"] == pytest.approx(0.008) and got["idle_share"] == pytest.approx(1.0)
