@@ -471,7 +471,7 @@ class ReplaySession:
         return ReplayStart(self.path.name, self.resolved, self.reader.metadata, self.bin_model, judge)
 
     def located(self, *, frames: tuple[int, int | None] = (0, None), config: cfg.PipelineConfig | None = None,
-                hold: bool = True, locators: int = 1) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
+                hold: bool = True) -> DerivedStream[tuple[Frame, Future[BinLocation]]]:
         """``(frame, future of its BinLocation)`` for every readable frame in ``frames``.
 
         The next frame is read in a background thread while this one runs; the bin mask and
@@ -483,8 +483,7 @@ class ReplaySession:
         stops and joins both threads. Its ``damage`` is the frame stream's (final once it has ended).
         ``hold``: a frame is given once the next one has been read and its location started (a caller
         that works on one frame at a time); False: as soon as its own location has started (a caller
-        with frames in flight, whose workers wait on the futures). ``locators``: the threads that locate frames
-        (two frames' locations then run at once; each depends on its frame and the seed alone).
+        with frames in flight, whose workers wait on the futures).
         """
         config = self._check(config)
         start, stop = frames
@@ -497,15 +496,15 @@ class ReplaySession:
                                                                               self.config.registration):
             location = None
         stream = self.reader.frames(start=start, stop=stop, decoded=first)
-        return DerivedStream(self._located(stream, config, location, hold=hold, locators=locators), stream)
+        return DerivedStream(self._located(stream, config, location, hold=hold), stream)
 
     def _located(self, stream: FrameStream, config: cfg.PipelineConfig, first_location: BinLocation | None = None,
-                 *, hold: bool = True, locators: int = 1) -> Iterator[tuple[Frame, Future[BinLocation]]]:
+                 *, hold: bool = True) -> Iterator[tuple[Frame, Future[BinLocation]]]:
         from threadpoolctl import threadpool_limits
 
         bin_model, seed = self.prepared, self.seed
         frame_iter = prefetched(stream)
-        locator = ThreadPoolExecutor(max_workers=max(1, locators), thread_name_prefix="zcut-locate")
+        locator = ThreadPoolExecutor(max_workers=1, thread_name_prefix="zcut-locate")
         blas = threadpool_limits(limits=1, user_api="blas")
         pending: tuple[Frame, Future[BinLocation]] | None = None
         early = False
@@ -572,7 +571,7 @@ class ReplaySession:
         n = frames_in_flight() if in_flight is None else in_flight
         if n < 1:
             raise ConfigError(f"in_flight must be >= 1, got {n}")
-        located = self.located(frames=frames, config=config, hold=n <= 1, locators=n)
+        located = self.located(frames=frames, config=config, hold=n <= 1)
         return DerivedStream(self._results(located, config, n), located)
 
     def _results(self, located: DerivedStream[tuple[Frame, Future[BinLocation]]], config: cfg.PipelineConfig,
