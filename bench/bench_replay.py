@@ -703,6 +703,15 @@ def print_timeline(run: dict, label: str, cores: int = 2) -> None:
           f"CPU {run['cpu_ms']:.1f} ms a frame; on {cores} quiet cores (idle_causes): wall {1000 * got['wall_s'] / n:.1f} "
           f"ms a frame, idle {1000 * got['idle_s'] / n:.1f} core-ms a frame = {100 * got['idle_share']:.1f} % of the "
           f"cores")
+    times = sorted(t for _, t in run.get("delivered", []))
+    if len(times) >= 3:  # the pass's start (to the first frame delivered), its end (after the last but one), the rest
+        parts = {"start": [r for r in records if r[0] <= times[0]],
+                 "middle": [r for r in records if times[0] < r[0] <= times[-2]],
+                 "end": [r for r in records if r[0] > times[-2]]}
+        split = {k: idle_causes(v, names, cores) for k, v in parts.items()}
+        print("    by part of the pass: " + "; ".join(
+            f"{k} {1000 * v['idle_s'] / n:.1f} core-ms a frame idle of {1000 * v['wall_s']:.0f} ms "
+            f"({100 * v['idle_share']:.1f} %)" for k, v in split.items()))
     for what, s in sorted(got["by"].items(), key=lambda kv: -kv[1])[:14]:
         print(f"    {1000 * s / n:6.1f} core-ms a frame ({100 * s / max(got['idle_s'], 1e-12):4.1f} % of the idle)  {what}")
     rows: dict[str, list[list[float]]] = {}
@@ -741,10 +750,12 @@ def print_timeline(run: dict, label: str, cores: int = 2) -> None:
     print(f"    {'cores used':18s} " + "".join(str(min(9, round(c / TIMELINE_BIN_S))) for c in total))
 
 
-def timeline_table(log: Path, against: Path | None, repeats: int, in_flight: int | None) -> None:
+def timeline_table(log: Path, against: Path | None, repeats: int, in_flight: int | None,
+                   save: Path | None = None) -> None:
     """``--timeline``: traced runs (:func:`thread_accounting` keeping every sample) of this tree and ``against``'s,
     alternating ``repeats`` times; per tree the idle shares of two quiet cores of every run and their median, then
-    the last run's causes and timeline (:func:`print_timeline`)."""
+    the last run's causes and timeline (:func:`print_timeline`). ``save``: a folder the runs are written to (one
+    JSON file each), for :func:`print_timeline` later."""
     this_tree = Path(__file__).resolve().parents[1]
     trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
     got: dict[str, list[dict]] = {k: [] for k in trees}
@@ -753,6 +764,11 @@ def timeline_table(log: Path, against: Path | None, repeats: int, in_flight: int
         for name, tree in trees.items():
             loads.append(os.getloadavg()[0])
             got[name].append(child_json(tree, "--timeline-json", str(log), str(in_flight or 0), layer="default"))
+            if save is not None:
+                import json
+
+                save.mkdir(parents=True, exist_ok=True)
+                (save / f"{name.replace(' ', '_')}_{len(got[name])}.json").write_text(json.dumps(got[name][-1]))
     print(f"\nwhere two quiet cores would idle in a whole replay of {log.name}, {in_flight or 'the default number of'} "
           f"frame(s) in flight, {warm_passes()} warm pass(es); load average {min(loads):.1f}-{max(loads):.1f} on "
           f"{os.cpu_count()} cores; the tracer samples every {1000 * TRACE_PERIOD_S:.0f} ms")
@@ -1179,6 +1195,7 @@ def main() -> None:
     ap.add_argument("--timeline", action="store_true",
                     help="where two quiet cores would idle in a whole replay of --log and why: each thread's timeline "
                          "and the idle share's causes, this tree and --against's alternating --repeats times")
+    ap.add_argument("--timeline-save", type=Path, help="--timeline: write each traced run to this folder (JSON)")
     ap.add_argument("--timeline-json", nargs=2, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default): one JSON line
     ap.add_argument("--in-flight", type=int, default=0,
                     help="--threads: frames in flight (default 0: each tree's own default)")
@@ -1200,7 +1217,7 @@ def main() -> None:
     if args.timeline:
         if args.log is None:
             raise SystemExit("--timeline needs --log LOG")
-        timeline_table(args.log, args.against, args.repeats, args.in_flight or None)
+        timeline_table(args.log, args.against, args.repeats, args.in_flight or None, args.timeline_save)
         return
     if args.threads:
         if args.log is None:
