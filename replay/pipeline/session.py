@@ -275,15 +275,6 @@ def default_frames_in_flight() -> int:
     return 2 if safe else 1
 
 
-def one_kernel_thread() -> None:
-    """Run the calling thread's numba ``parallel=True`` kernels on one thread (``numba.set_num_threads`` is the
-    calling thread's own setting): a frame worker's, when frames are in flight, whose parallelism is the other
-    frames'. The kernels' rows are independent (no reduction across them): the same results on any number."""
-    import numba
-
-    numba.set_num_threads(1)
-
-
 def prefetched(frames: Iterator[Frame], *, depth: int = 1) -> Generator[Frame, None, None]:
     """Iterate ``frames`` in a background thread, up to ``depth`` frames ahead of the consumer.
 
@@ -592,8 +583,7 @@ class ReplaySession:
             finally:
                 located.close()
             return
-        pool = ThreadPoolExecutor(max_workers=in_flight, thread_name_prefix="zcut-frame",
-                                  initializer=one_kernel_thread)
+        pool = ThreadPoolExecutor(max_workers=in_flight, thread_name_prefix="zcut-frame")
         running: deque[tuple[Frame, Future[FrameResult]]] = deque()
         try:
             while True:
