@@ -359,14 +359,21 @@ _OWN_CODE = (f"{os.sep}replay{os.sep}", f"{os.sep}zcut{os.sep}")
 def _schedstat(tid: int) -> tuple[int, int, bool] | None:
     """(ns run, ns waited on a run queue, whether it is ready to run now: running or waiting for a core) of a
     thread of this process (``/proc/self/task/TID/schedstat`` and ``stat``)."""
-    try:
-        with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
-            run, queued, _ = f.read().split()
-        with open(f"/proc/self/task/{tid}/stat", "rb") as f:
-            state = f.read().rsplit(b")", 1)[1].split(None, 1)[0]
+    try:  # os.open and os.read: a third of the cost of Python's file objects (the tracer reads ~40 files a sample)
+        run, queued, _ = _read_proc(f"/proc/self/task/{tid}/schedstat").split()
+        state = _read_proc(f"/proc/self/task/{tid}/stat").rsplit(b")", 1)[1].split(None, 1)[0]
     except (OSError, ValueError, IndexError):
         return None
     return int(run), int(queued), state == b"R"
+
+
+def _read_proc(path: str) -> bytes:
+    """The bytes of a small file of /proc (one ``read``)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        return os.read(fd, 4096)
+    finally:
+        os.close(fd)
 
 
 def _where(frame: Any) -> str:
@@ -950,8 +957,7 @@ def thread_stats(known: dict[int, tuple]) -> dict[int, tuple[str, float, float, 
     out: dict[int, tuple[str, float, float, int]] = {}
     for tid in os.listdir("/proc/self/task"):
         try:
-            with open(f"/proc/self/task/{tid}/stat") as f:
-                st = f.read().rsplit(")", 1)[1].split()
+            st = _read_proc(f"/proc/self/task/{tid}/stat").decode().rsplit(")", 1)[1].split()
         except OSError:
             continue
         old = known.get(int(tid))
