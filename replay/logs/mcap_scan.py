@@ -91,7 +91,7 @@ OP_LOST = 0x100
 #: thread idled while the first decompressed a cloud and the next cloud's chunk waited for it: the start
 #: of a pass read its first frame ~25 ms later with one core idle (docs/performance.md, "Where the last
 #: core-fraction waits").
-PREFETCH = 8
+PREFETCH = 4
 PREFETCH_BYTES = 256 << 20
 _OP_NOTE = -1  # internal: a damage record queued among the records
 
