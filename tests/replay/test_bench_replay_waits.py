@@ -102,3 +102,22 @@ def test_idle_causes_credits_the_missing_core_to_the_workers_states(bench):
     # nothing ran at all: the sample keeps its length and both cores idle
     got = bench.idle_causes([_sample(0.004, (2, 0.0, 0.0, wait), (3, 0.0, 0.0, wait))], names, cores=2)
     assert got["idle_s"] == pytest.approx(0.008) and got["idle_share"] == pytest.approx(1.0)
+
+
+def test_print_timeline_draws_each_thread_and_the_cores_used(bench, capsys):
+    names = {"1": "MainThread", "2": "zcut-frame_0", "3": "zcut-frame_1"}
+    wait = "session.py:_frame_result:640 `location = future.result()` <- wait"
+    records = [(0.010 * (i + 1), 0.010, [(1, 0.0, 0.0, False, "session.py:_results:600 `work.result()` <- wait"),
+                                         (2, 0.010, 0.0, True, "x"),
+                                         (3, 0.010 if i % 2 else 0.0, 0.0, bool(i % 2), "x" if i % 2 else wait)])
+               for i in range(8)]
+    run = {"names": names, "records": records, "frames": 2, "in_flight": 2, "layer": "omp", "cpu_ms": 60.0,
+           "delivered": [(1, 0.03), (2, 0.06), (3, 0.08)]}
+    bench.print_timeline(run, "this tree")
+    out = capsys.readouterr().out
+    # half the samples one worker waited for its location: a quarter of two cores idle
+    assert "= 25.0 % of the cores" in out, out
+    assert "waits at session.py:_frame_result `location = future.result()`" in out
+    lines = {ln.split()[0]: ln.split()[-1] for ln in out.splitlines() if ln.startswith("    ") and len(ln.split()) >= 2}
+    assert lines["zcut-frame_0"].startswith("####")  # ran every bin
+    assert lines["MainThread"].startswith("wwww")  # blocked in a wait throughout
