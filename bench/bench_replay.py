@@ -64,6 +64,14 @@ frame (numba compilation, model caches):
   or a native wait); the frames' pieces in time (read, locate, bin stages, methods, delivery); and what the run
   implies for two quiet cores (:func:`quiet_estimate`: each 50 ms of the run did its work with the threads
   ready then, at most two at a time).
+- "Timeline" (``--timeline --log LOG [--against DIR] [--repeats N] [--warm-passes N] [--in-flight N]
+  [--timeline-save DIR]``, issue 32 item 1: where the second core idles): the ``--threads`` tracer keeping every
+  sample (each thread's run time, run-queue wait, state and place), this tree and DIR alternating; per run the idle
+  share of two quiet cores (:func:`idle_causes`: each sample as long as its work takes on two quiet cores, the
+  missing core-fraction credited to the frame workers' states: busy, waiting for a location, for SOR's threads, off
+  the CPU in a kernel call, idle; and the main thread's when neither works), split into the pass's start, middle and
+  end, and the last run's timeline per thread in 20 ms characters. On a loaded machine every thread also waits for a
+  core: the estimate then counts fewer idle cores than two quiet ones would have (read it as an attribution).
 - "Fixed costs" (``--startup --log LOG [--against DIR] [--repeats N]``, issue 32 item 2): ``zcut replay
   LOG`` as a user runs it (``python -m cli``, a fresh process), with ``--frames 0:1`` and over all N
   frames, for this tree and DIR alternating N times. The CPU s of a process (user + sys of all its
