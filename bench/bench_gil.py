@@ -44,7 +44,7 @@ from replay.pipeline.session import FrameRow, ReplaySession  # noqa: E402
 SLEEP_S = 0.0002
 
 #: the functions of replay.pipeline.stages whose windows are timed (the stages' pieces, in the order they run)
-PIECES = ("valid_pixels", "bin_mask", "bin_pixels", "subsampled_points", "prepare_target", "pose_fitness",
+PIECES = ("valid_pixels", "bin_mask", "bin_pixels", "subsampled_points", "prepare_target", "pose_fitness_at_least",
           "register_bin", "remove_table_and_bin", "check_bin_removal", "relative_metrics")
 
 

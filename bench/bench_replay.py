@@ -64,6 +64,14 @@ frame (numba compilation, model caches):
   or a native wait); the frames' pieces in time (read, locate, bin stages, methods, delivery); and what the run
   implies for two quiet cores (:func:`quiet_estimate`: each 50 ms of the run did its work with the threads
   ready then, at most two at a time).
+- "Timeline" (``--timeline --log LOG [--against DIR] [--repeats N] [--warm-passes N] [--in-flight N]
+  [--timeline-save DIR]``, issue 32 item 1: where the second core idles): the ``--threads`` tracer keeping every
+  sample (each thread's run time, run-queue wait, state and place), this tree and DIR alternating; per run the idle
+  share of two quiet cores (:func:`idle_causes`: each sample as long as its work takes on two quiet cores, the
+  missing core-fraction credited to the frame workers' states: busy, waiting for a location, for SOR's threads, off
+  the CPU in a kernel call, idle; and the main thread's when neither works), split into the pass's start, middle and
+  end, and the last run's timeline per thread in 20 ms characters. On a loaded machine every thread also waits for a
+  core: the estimate then counts fewer idle cores than two quiet ones would have (read it as an attribution).
 - "Fixed costs" (``--startup --log LOG [--against DIR] [--repeats N]``, issue 32 item 2): ``zcut replay
   LOG`` as a user runs it (``python -m cli``, a fresh process), with ``--frames 0:1`` and over all N
   frames, for this tree and DIR alternating N times. The CPU s of a process (user + sys of all its
@@ -89,7 +97,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-if "--throughput-json" in sys.argv or "--threads-json" in sys.argv or "--stage-json" in sys.argv:
+if any(mode in sys.argv for mode in ("--throughput-json", "--threads-json", "--stage-json", "--timeline-json")):
     # a measuring child (a whole replay, its threads, or the stage table): the process set up as `zcut replay`
     # sets it up, before numba, OpenCV and Open3D load (the tree's own replay.process.configure_process)
     from replay.process import configure_process
@@ -214,7 +222,7 @@ def print_stage_table(new: dict[str, float], old: dict[str, float] | None) -> No
 
 
 #: the measuring children's modes (this script run with the code of another tree): one JSON line each
-CHILD_MODES = ("--stage-json", "--throughput-json", "--threads-json")
+CHILD_MODES = ("--stage-json", "--throughput-json", "--threads-json", "--timeline-json")
 
 
 def child_json(tree: Path, mode: str, *args: str, env: dict[str, str] | None = None, layer: str | None = None) -> dict:
@@ -359,14 +367,21 @@ _OWN_CODE = (f"{os.sep}replay{os.sep}", f"{os.sep}zcut{os.sep}")
 def _schedstat(tid: int) -> tuple[int, int, bool] | None:
     """(ns run, ns waited on a run queue, whether it is ready to run now: running or waiting for a core) of a
     thread of this process (``/proc/self/task/TID/schedstat`` and ``stat``)."""
-    try:
-        with open(f"/proc/self/task/{tid}/schedstat", "rb") as f:
-            run, queued, _ = f.read().split()
-        with open(f"/proc/self/task/{tid}/stat", "rb") as f:
-            state = f.read().rsplit(b")", 1)[1].split(None, 1)[0]
+    try:  # os.open and os.read: a third of the cost of Python's file objects (the tracer reads ~40 files a sample)
+        run, queued, _ = _read_proc(f"/proc/self/task/{tid}/schedstat").split()
+        state = _read_proc(f"/proc/self/task/{tid}/stat").rsplit(b")", 1)[1].split(None, 1)[0]
     except (OSError, ValueError, IndexError):
         return None
     return int(run), int(queued), state == b"R"
+
+
+def _read_proc(path: str) -> bytes:
+    """The bytes of a small file of /proc (one ``read``)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        return os.read(fd, 4096)
+    finally:
+        os.close(fd)
 
 
 def _where(frame: Any) -> str:
@@ -422,6 +437,9 @@ class _WaitTracer:
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="bench-sampler", daemon=True)
         self.own_tid = -1
+        #: ``--timeline``: per sample, its end (s from the start), its length (s) and every thread's
+        #: (tid, run s, run-queue s, ready at the end, place at the start); None: not kept
+        self.records: list[tuple[float, float, list[tuple[int, float, float, bool, str]]]] | None = None
 
     def start(self) -> None:
         self.t0 = self._t = time.perf_counter()
@@ -458,6 +476,7 @@ class _WaitTracer:
                     self.where[th.native_id] = _where(fr)
         del frames
         ran, ready = 0.0, 0
+        rows: list[tuple[int, float, float, bool, str]] = []
         for tid in map(int, os.listdir("/proc/self/task")):
             got = _schedstat(tid)
             if got is None:
@@ -473,12 +492,16 @@ class _WaitTracer:
                 off_s = max(dt - run_s - queued_s, 0.0)
             ran += run_s
             ready += got[2]
-            acc = self.spent.setdefault(tid, {}).setdefault(was.get(tid, self.where.get(tid, "native")), [0.0] * 3)
+            place = was.get(tid, self.where.get(tid, "native"))
+            rows.append((tid, run_s, queued_s, got[2], place))
+            acc = self.spent.setdefault(tid, {}).setdefault(place, [0.0] * 3)
             acc[0] += run_s
             acc[1] += queued_s
             acc[2] += off_s
         if not first and dt > 0:
             self.busy.append((now - self.t0, ran, ready))
+            if self.records is not None:
+                self.records.append((now - self.t0, dt, rows))
 
     def places(self, n: int, wall_s: float) -> dict[str, dict[str, object]]:
         """Per thread group: its threads, the share of the wall it ran, waited for a core and was off the CPU
@@ -548,7 +571,7 @@ def _frame_events(session: Any, t0: list[float]) -> list[tuple[int, str, str, fl
     return events
 
 
-def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
+def thread_accounting(log: Path, in_flight: int | None, timeline: bool = False) -> dict[str, object]:
     """Where the CPU of a whole replay goes, per thread, and where its threads wait (``--threads``):
     ``ReplaySession.run`` over frames 1.. after frame 0 (and ``--warm-passes``), no outputs, ``in_flight`` frames
     at once (None: the tree's default); every thread's user and system CPU ms and minor page faults per frame
@@ -571,6 +594,8 @@ def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
     events = _frame_events(session, t0)
     delivered: list[tuple[int, float]] = []
     tracer = _WaitTracer()
+    if timeline:
+        tracer.records = []
     ru0 = resource.getrusage(resource.RUSAGE_SELF)
     tracer.start()
     base = dict(tracer.seen)
@@ -600,7 +625,175 @@ def thread_accounting(log: Path, in_flight: int | None) -> dict[str, object]:
             "minflt": (ru1.ru_minflt - ru0.ru_minflt) / n, "threads": groups, "sampler_ms": sampler_ms,
             "places": tracer.places(n, wall), "events": events, "delivered": delivered,
             "in_flight": in_flight or 0, "layer": _layer_run(__import__("numba")),
-            "quiet": quiet_estimate(tracer.busy, delivered), "samples": tracer.busy}
+            "quiet": quiet_estimate(tracer.busy, delivered), "samples": tracer.busy,
+            "records": tracer.records or [], "names": {str(tid): name for tid, name in tracer.names.items()}}
+
+
+#: the functions of threading, queue and concurrent.futures in which a thread is blocked waiting (a thread
+#: :func:`_where` places in one of them waits there; off the CPU elsewhere, it waits for the GIL or in native code)
+_WAITS = ("wait", "acquire", "get", "result", "join", "_wait_for_tstate_lock", "sleep", "select")
+
+
+#: calls of zcut's code that block in C without a Python frame of their own (``queue.SimpleQueue.get``, a lock's
+#: ``acquire``): a thread off the CPU at a line of Python that makes one of them waits there
+_C_WAITS = ("q.get(", ".acquire(", "wait(", ".result(", ".join(", "sleep(")
+
+
+def wait_kind(place: str) -> str:
+    """What a thread off the CPU at ``place`` (:func:`_where`) waits for: ``waits at FILE:FUNCTION `line```
+    (blocked in a wait of threading, queue or concurrent.futures called from that line of zcut's code), ``idle in
+    its pool`` (a pool's worker waiting for work), ``native`` (a thread Python does not know), else ``GIL or native
+    call at FILE:FUNCTION `line``` (off the CPU at a line of Python: waiting for the GIL, or inside a C call that
+    blocks); a line that calls one of :data:`_C_WAITS` waits there."""
+    if place == "native":
+        return "native"
+    head, _, tail = place.partition(" <- ")
+    file_fn, _, text = head.partition(" `")
+    where = ":".join(file_fn.split(":")[:2]) + (f" `{text}" if text else "")
+    if tail in _WAITS or any(call in text for call in _C_WAITS):
+        return f"waits at {where}"
+    if not text:  # no frame of zcut's code: a pool's worker between jobs, or the interpreter's own wait
+        return "idle in its pool" if ":_worker:" in place or place.endswith(":_worker") else f"waits at {where}"
+    return f"GIL or native call at {where}"
+
+
+def idle_causes(records: list, names: dict[str, str], cores: int = 2, busy_share: float = 0.5) -> dict[str, object]:
+    """Where ``cores`` quiet cores would idle in a traced run (``--timeline``: :class:`_WaitTracer`'s records), and
+    why.
+
+    Each sample of length dt: the process's threads ran R CPU s and waited W s for a core; on quiet cores it had
+    P = min((R + W) / dt, ``cores``) cores' worth of work ready, so the sample takes R / P s there and leaves
+    (``cores`` - P) x R / P core-s idle. That idle is credited to the state of the frame workers (``zcut-frame``
+    threads) over the sample: one that ran or waited for a core at least ``busy_share`` of it is ``busy``, else
+    :func:`wait_kind` of its place; the label names the workers not busy (and, when none is busy, the main
+    thread's state: it hands the frames to them). Returns the quiet wall s, the idle core-s, the idle share of the
+    cores (idle / (``cores`` x wall)) and the idle core-s by label."""
+    wall = idle = 0.0
+    by: dict[str, float] = {}
+    for _, dt, rows in records:
+        run = sum(r[1] for r in rows)
+        want = sum(r[1] + r[2] for r in rows)
+        par = min(want / dt, float(cores)) if dt > 0 else 0.0
+        q = run / par if par > 0 else dt
+        wall += q
+        gap = (cores - par) * q
+        if gap <= 0:
+            continue
+        idle += gap
+        state = {}
+        for tid, run_s, queued_s, _, place in rows:
+            name = names.get(str(tid), "native")
+            state.setdefault(_group(name), []).append(
+                "busy" if run_s + queued_s >= busy_share * dt else wait_kind(place))
+        workers = state.get("zcut-frame", [])
+        off = sorted(w for w in workers if w != "busy")
+        if not workers:
+            label = "no frame worker: main " + ("busy" if "busy" in state.get("MainThread", []) else
+                                                 ", ".join(state.get("MainThread", ["?"])))
+        elif len(off) < len(workers):
+            label = f"{len(workers) - len(off)} frame worker(s) busy; the other(s): " + " / ".join(off)
+        else:
+            main = state.get("MainThread", ["?"])[0]
+            label = "no frame worker busy: " + " / ".join(off) + f"; main: {main}"
+        by[label] = by.get(label, 0.0) + gap
+    return {"wall_s": wall, "idle_s": idle, "idle_share": idle / (cores * wall) if wall else float("nan"),
+            "by": by}
+
+
+#: ``--timeline``: the bins of the printed timeline, s, and the most of them printed
+TIMELINE_BIN_S = 0.02
+TIMELINE_BINS = 120
+
+
+def print_timeline(run: dict, label: str, cores: int = 2) -> None:
+    """One traced run (``--timeline``): the idle share of ``cores`` quiet cores and its causes
+    (:func:`idle_causes`, ms a frame), then the run's first :data:`TIMELINE_BINS` bins of :data:`TIMELINE_BIN_S`
+    on quiet cores (each sample as long as :func:`idle_causes` makes it) per thread (one character a bin: ``#`` ran
+    >= 2/3 of it, ``+`` >= 1/3, ``-`` > 0, ``g`` off the CPU at a line of Python, the GIL or a native call, ``w``
+    blocked in a wait, ``.`` idle in its pool or ended) and the cores the process used in each bin."""
+    names, records = run["names"], run["records"]
+    n = max(int(run["frames"]), 1)
+    got = idle_causes(records, names, cores)
+    print(f"\n  {label}: {run['frames']} frames, {run['in_flight'] or 'default'} in flight, layer {run['layer']}; "
+          f"CPU {run['cpu_ms']:.1f} ms a frame; on {cores} quiet cores (idle_causes): wall {1000 * got['wall_s'] / n:.1f} "
+          f"ms a frame, idle {1000 * got['idle_s'] / n:.1f} core-ms a frame = {100 * got['idle_share']:.1f} % of the "
+          f"cores")
+    times = sorted(t for _, t in run.get("delivered", []))
+    if len(times) >= 3:  # the pass's start (to the first frame delivered), its end (after the last but one), the rest
+        parts = {"start": [r for r in records if r[0] <= times[0]],
+                 "middle": [r for r in records if times[0] < r[0] <= times[-2]],
+                 "end": [r for r in records if r[0] > times[-2]]}
+        split = {k: idle_causes(v, names, cores) for k, v in parts.items()}
+        print("    by part of the pass: " + "; ".join(
+            f"{k} {1000 * v['idle_s'] / n:.1f} core-ms a frame idle of {1000 * v['wall_s']:.0f} ms "
+            f"({100 * v['idle_share']:.1f} %)" for k, v in split.items()))
+    for what, s in sorted(got["by"].items(), key=lambda kv: -kv[1])[:14]:
+        print(f"    {1000 * s / n:6.1f} core-ms a frame ({100 * s / max(got['idle_s'], 1e-12):4.1f} % of the idle)  {what}")
+    rows: dict[str, list[list[float]]] = {}
+    quiet_t = 0.0  # the sample's middle on quiet cores (each sample's length there: idle_causes)
+    for _, dt, rs in records:
+        run = sum(r[1] for r in rs)
+        par = min(sum(r[1] + r[2] for r in rs) / dt, float(cores)) if dt > 0 else 0.0
+        q = run / par if par > 0 else dt
+        b = int((quiet_t + q / 2) / TIMELINE_BIN_S)
+        quiet_t += q
+        if b >= TIMELINE_BINS:
+            break
+        for tid, run_s, queued_s, _, place in rs:
+            name = names.get(str(tid), "native")
+            key = name if _group(name) in ("MainThread", "zcut-frame", "zcut-locate", "zcut-frame-reader") else _group(name)
+            cells = rows.setdefault(key, [[0.0] * 4 for _ in range(TIMELINE_BINS)])
+            kind = wait_kind(place) if run_s + queued_s < 0.5 * dt else ""
+            cells[b][0] += run_s
+            cells[b][1] += queued_s
+            cells[b][2] += q if kind.startswith("GIL") else 0.0
+            cells[b][3] += q if kind.startswith("waits") else 0.0
+    print(f"  the first {TIMELINE_BINS * TIMELINE_BIN_S:.1f} s on quiet cores, {1000 * TIMELINE_BIN_S:.0f} ms a "
+          "character (# ran >= 2/3, + >= 1/3, - less; g off CPU at a Python line: GIL / native, w blocked in a wait, "
+          ". idle or ended):")
+    total = [0.0] * TIMELINE_BINS
+    for key in sorted(rows, key=lambda k: (k != "MainThread", k)):
+        threads = max(1, sum(1 for tid, nm in names.items() if (nm if _group(nm) in ("MainThread", "zcut-frame",
+                      "zcut-locate", "zcut-frame-reader") else _group(nm)) == key))
+        line = []
+        for i, (r, _, g, w) in enumerate(rows[key]):
+            total[i] += r
+            f = r / (TIMELINE_BIN_S * threads)
+            line.append("#" if f >= 2 / 3 else "+" if f >= 1 / 3 else "-" if r > 0 else
+                        "g" if g > w and g > 0.3 * TIMELINE_BIN_S else "w" if w > 0.3 * TIMELINE_BIN_S else ".")
+        print(f"    {key[:18]:18s} {''.join(line)}")
+    print(f"    {'cores used':18s} " + "".join(str(min(9, round(c / TIMELINE_BIN_S))) for c in total))
+
+
+def timeline_table(log: Path, against: Path | None, repeats: int, in_flight: int | None,
+                   save: Path | None = None) -> None:
+    """``--timeline``: traced runs (:func:`thread_accounting` keeping every sample) of this tree and ``against``'s,
+    alternating ``repeats`` times; per tree the idle shares of two quiet cores of every run and their median, then
+    the last run's causes and timeline (:func:`print_timeline`). ``save``: a folder the runs are written to (one
+    JSON file each), for :func:`print_timeline` later."""
+    this_tree = Path(__file__).resolve().parents[1]
+    trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
+    got: dict[str, list[dict]] = {k: [] for k in trees}
+    loads = []
+    for _ in range(max(repeats, 1)):
+        for name, tree in trees.items():
+            loads.append(os.getloadavg()[0])
+            got[name].append(child_json(tree, "--timeline-json", str(log), str(in_flight or 0), layer="default"))
+            if save is not None:
+                import json
+
+                save.mkdir(parents=True, exist_ok=True)
+                (save / f"{name.replace(' ', '_')}_{len(got[name])}.json").write_text(json.dumps(got[name][-1]))
+    print(f"\nwhere two quiet cores would idle in a whole replay of {log.name}, {in_flight or 'the default number of'} "
+          f"frame(s) in flight, {warm_passes()} warm pass(es); load average {min(loads):.1f}-{max(loads):.1f} on "
+          f"{os.cpu_count()} cores; the tracer samples every {1000 * TRACE_PERIOD_S:.0f} ms")
+    for name, rs in got.items():
+        shares = [idle_causes(r["records"], r["names"])["idle_share"] for r in rs]
+        print(f"  {name}: idle share of the two cores " + ", ".join(f"{100 * v:.1f} %" for v in shares)
+              + f" (median {100 * statistics.median(shares):.1f} %); CPU ms a frame "
+              + ", ".join(f"{r['cpu_ms']:.1f}" for r in rs))
+    for name, rs in got.items():
+        print_timeline(rs[-1], name)
 
 
 def quiet_estimate(samples: list[tuple[float, float, float]], delivered: list[tuple[int, float]],
@@ -772,8 +965,7 @@ def thread_stats(known: dict[int, tuple]) -> dict[int, tuple[str, float, float, 
     out: dict[int, tuple[str, float, float, int]] = {}
     for tid in os.listdir("/proc/self/task"):
         try:
-            with open(f"/proc/self/task/{tid}/stat") as f:
-                st = f.read().rsplit(")", 1)[1].split()
+            st = _read_proc(f"/proc/self/task/{tid}/stat").decode().rsplit(")", 1)[1].split()
         except OSError:
             continue
         old = known.get(int(tid))
@@ -975,6 +1167,9 @@ def child_main(args: argparse.Namespace) -> None:
     elif args.threads_json:
         log_, n_ = args.threads_json
         got = thread_accounting(Path(log_), int(n_) or None)
+    elif args.timeline_json:
+        log_, n_ = args.timeline_json
+        got = thread_accounting(Path(log_), int(n_) or None, timeline=True)
     else:
         log_, n_, o_ = args.throughput_json
         got = throughput(Path(log_), int(n_) or None, o_)
@@ -1011,6 +1206,11 @@ def main() -> None:
                     help="where a whole replay of --log spends its CPU, per thread (user, system, page faults), this "
                          "tree and --against's alternating --repeats times")
     ap.add_argument("--threads-json", nargs=2, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default): one JSON line
+    ap.add_argument("--timeline", action="store_true",
+                    help="where two quiet cores would idle in a whole replay of --log and why: each thread's timeline "
+                         "and the idle share's causes, this tree and --against's alternating --repeats times")
+    ap.add_argument("--timeline-save", type=Path, help="--timeline: write each traced run to this folder (JSON)")
+    ap.add_argument("--timeline-json", nargs=2, help=argparse.SUPPRESS)  # LOG IN_FLIGHT (0: default): one JSON line
     ap.add_argument("--in-flight", type=int, default=0,
                     help="--threads: frames in flight (default 0: each tree's own default)")
     ap.add_argument("--warm-passes", type=int, default=0,
@@ -1025,8 +1225,13 @@ def main() -> None:
     args = ap.parse_args()
     if args.warm_passes:
         os.environ[WARM_PASSES_VARIABLE] = str(args.warm_passes)  # the measuring children read it
-    if args.stage_json or args.threads_json or args.throughput_json:
+    if args.stage_json or args.threads_json or args.throughput_json or args.timeline_json:
         child_main(args)
+        return
+    if args.timeline:
+        if args.log is None:
+            raise SystemExit("--timeline needs --log LOG")
+        timeline_table(args.log, args.against, args.repeats, args.in_flight or None, args.timeline_save)
         return
     if args.threads:
         if args.log is None:
