@@ -3,10 +3,13 @@ person's label before and after each fit's pose is refined, IoU with the paper's
 truth the refined fits explain lies (its distance to the true surfaces: read only to score). The fits after the refinement
 are not vetted again nor joined by pieces on top or slivers (they come before it in the method too).
 
-    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/refine_on_cache.py LOG CACHE_DIR [FRAMES] ['{"reach_mm": 2.0}']
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/refine_on_cache.py LOG CACHE_DIR [FRAMES] ['{"REFINE_REACH_MM": 2.0}']
 
 CACHE_DIR: a ``bench/bench_label_pageonly.py --diagnose LOG --fits-cache DIR`` cache (the tree's fits without the
-refinement; the remaining arguments: comma-separated frames, refine_poses' keywords as JSON).
+refinement; the remaining arguments: comma-separated frames, constants of zcut.explained as JSON, e.g.
+``'{"REFINE_REACH_MM": 1.5, "REFINE_FRONT": 1}'``). The refinement runs as the method calls it
+(:func:`zcut.explained.with_refined_poses`: the refinement, the nearest surfaces searched again, the residuals measured
+again); ``cpu_refine`` is its CPU-s.
 """
 import dataclasses
 import json
@@ -25,7 +28,9 @@ from zcut import explained as ex  # noqa: E402
 log = Path(sys.argv[1])
 B.FITS_CACHE = Path(sys.argv[2])
 frames = {int(v) for v in sys.argv[3].split(",")} if len(sys.argv) > 3 else set()
-kw = json.loads(sys.argv[4]) if len(sys.argv) > 4 else {}
+variants = json.loads(sys.argv[4]) if len(sys.argv) > 4 else [{}]
+variants = [variants] if isinstance(variants, dict) else variants
+DEFAULTS = {n: getattr(ex, n) for n in dir(ex) if n.startswith("REFINE_")}
 for frame, job, ff, _cpu, _ in B.fitted_frames(log):
     if frames and frame.index not in frames:
         continue
@@ -46,49 +51,60 @@ for frame, job, ff, _cpu, _ in B.fitted_frames(log):
     base[ff.un_pix] = True
     base = base.reshape(H, W)
     poses = [np.asarray(f["pose"]) for f in ff.fits]
-    t2 = time.process_time()
-    new = ex.refine_poses(xyz, near, poses, ff.part_mesh, err, k=ff.k, **kw)
-    t3 = time.process_time()
-    moved = [i for i in range(len(poses)) if not np.array_equal(new[i], poses[i])]
-    fits2 = tuple({**f, "pose": new[i].tolist()} for i, f in enumerate(ff.fits))
-    ff2 = dataclasses.replace(ff, fits=fits2)
-    known2 = ff2.known()
-    near2 = ex.nearest_surface(xyz, known2, where=served)
-    known2b = dataclasses.replace(known2, part_err_mm=list(ff.part_err_mm))
-    err2b = ex.err_image(near2, known2b, foot, floor_mm=ff.floor_mm)
-    un2b = ex.unexplained(near2.dist_mm, err2b, ff.k) & served
-    known2 = dataclasses.replace(known2, part_err_mm=ex.fit_sigmas(near2, list(ff.part_err_mm), where=zone))
-    sig0 = np.asarray(ff.part_err_mm)
-    sig2 = np.asarray(known2.part_err_mm)
-    err2 = ex.err_image(near2, known2, foot, floor_mm=ff.floor_mm)
-    un2 = ex.unexplained(near2.dist_mm, err2, ff.k) & served
-    def ff_of(un, nr, er, kn, ff=ff, fits2=fits2, known2=known2):  # type: ignore[no-untyped-def]
-        pix = np.flatnonzero(un.ravel())
-        return dataclasses.replace(ff, fits=fits2 if kn is known2 else ff.fits, un_pix=pix,
-                                   un_dist=nr.dist_mm.ravel()[pix].astype(np.float32),
-                                   un_err=er.ravel()[pix].astype(np.float32),
-                                   un_code=nr.surface.ravel()[pix].astype(np.int32),
-                                   part_err_mm=tuple(kn.part_err_mm))
-    res = {"frame": frame.index, "fits": len(poses), "moved": len(moved), "cpu_near": round(t1 - t0, 2),
-           "cpu_refine": round(t3 - t2, 2), "un_cache_vs_recomputed_xor": int((base ^ un0).sum()),
-           "un0": int(un0.sum()), "un2": int(un2.sum()),
-           "truth lost (un0 & truth & ~un2)": int((un0 & truth & ~un2).sum()),
-           "nontruth freed": int((un0 & ~truth & ~un2).sum()), "newly un": int((un2 & ~un0).sum()),
-           "old sigmas: truth lost": int((un0 & truth & ~un2b).sum()), "old sigmas: nontruth freed": int((un0 & ~truth & ~un2b).sum()),
-           "sigma median before/after": [float(np.median(sig0)), float(np.median(sig2))], "sigma rose": int((sig2 > sig0 + 1e-9).sum())}
-    lost = un0 & truth & ~un2
-    if lost.any():
-        parts, true_s = B._true_surfaces(log, frame)
-        nt = ex.nearest_surface(xyz, true_s, where=lost)
-        dt = nt.dist_mm[lost].astype(float)
-        res["lost: d_true quartiles"] = np.percentile(dt, [10, 25, 50, 75, 90]).round(3).tolist()
-        res["lost: d_true / err2 quartiles"] = np.percentile(dt / err2[lost], [10, 25, 50, 75, 90]).round(2).tolist()
-        res["lost: d_true <= k err2"] = int((dt <= ff.k * err2[lost]).sum())
-        res["lost: d_new quartiles"] = np.percentile(near2.dist_mm[lost], [10, 50, 90]).round(3).tolist()
-        res["lost: d_old quartiles"] = np.percentile(near.dist_mm[lost], [10, 50, 90]).round(3).tolist()
-    for name, f2 in (("base", ff_of(un0, near, err, known)), ("refined", ff_of(un2, near2, err2, known2))):
-        label, ids, how = B._emulated_person(f2, xyz, heights, valid)
-        label &= served
-        sc = B.label_scores(label, ids, truth, served, None)
-        res[name] = {k: sc[k] for k in ("iou", "held", "label", "truth")}
-    print(json.dumps(res), flush=True)
+    stated = [float(f.get("err_mm", s_)) for f, s_ in zip(ff.fits, ff.part_err_mm)]
+    base_score, true_s = None, None
+    for kw in variants:
+        for name, val in {**DEFAULTS, **kw}.items():  # constants of zcut.explained the refinement reads (REFINE_...)
+            setattr(ex, name, type(DEFAULTS[name])(val))
+        t2 = time.process_time()
+        new, known2, near2 = ex.with_refined_poses(xyz, near, known, poses, ff.part_mesh, stated, foot, k=ff.k,
+                                                   floor_mm=ff.floor_mm, zone=zone)
+        t3 = time.process_time()
+        moved = [i for i in range(len(poses)) if not np.array_equal(new[i], poses[i])]
+        fits2 = tuple({**f, "pose": new[i].tolist()} for i, f in enumerate(ff.fits))
+        known2b = dataclasses.replace(known2, part_err_mm=list(ff.part_err_mm))
+        err2b = ex.err_image(near2, known2b, foot, floor_mm=ff.floor_mm)
+        un2b = ex.unexplained(near2.dist_mm, err2b, ff.k) & served
+        sig0 = np.asarray(ff.part_err_mm)
+        sig2 = np.asarray(known2.part_err_mm)
+        err2 = ex.err_image(near2, known2, foot, floor_mm=ff.floor_mm)
+        un2 = ex.unexplained(near2.dist_mm, err2, ff.k) & served
+
+        def ff_of(un, nr, er, kn, ff=ff, fits2=fits2, known2=known2):  # type: ignore[no-untyped-def]
+            pix = np.flatnonzero(un.ravel())
+            return dataclasses.replace(ff, fits=fits2 if kn is known2 else ff.fits, un_pix=pix,
+                                       un_dist=nr.dist_mm.ravel()[pix].astype(np.float32),
+                                       un_err=er.ravel()[pix].astype(np.float32),
+                                       un_code=nr.surface.ravel()[pix].astype(np.int32),
+                                       part_err_mm=tuple(kn.part_err_mm))
+        res = {"variant": kw, "frame": frame.index, "fits": len(poses), "moved": len(moved), "cpu_near": round(t1 - t0, 2),
+               "cpu_refine": round(t3 - t2, 2), "un_cache_vs_recomputed_xor": int((base ^ un0).sum()),
+               "un0": int(un0.sum()), "un2": int(un2.sum()),
+               "truth lost (un0 & truth & ~un2)": int((un0 & truth & ~un2).sum()),
+               "nontruth freed": int((un0 & ~truth & ~un2).sum()), "newly un": int((un2 & ~un0).sum()),
+               "old sigmas: truth lost": int((un0 & truth & ~un2b).sum()), "old sigmas: nontruth freed": int((un0 & ~truth & ~un2b).sum()),
+               "sigma median before/after": [float(np.median(sig0)), float(np.median(sig2))], "sigma rose": int((sig2 > sig0 + 1e-9).sum())}
+        lost = un0 & truth & ~un2
+        if lost.any():
+            if true_s is None:
+                _, true_s = B._true_surfaces(log, frame)
+            nt = ex.nearest_surface(xyz, true_s, where=lost)
+            dt = nt.dist_mm[lost].astype(float)
+            res["lost: d_true quartiles"] = np.percentile(dt, [10, 25, 50, 75, 90]).round(3).tolist()
+            res["lost: d_true / err2 quartiles"] = np.percentile(dt / err2[lost], [10, 25, 50, 75, 90]).round(2).tolist()
+            res["lost: d_true <= k err2"] = int((dt <= ff.k * err2[lost]).sum())
+            res["lost: d_new quartiles"] = np.percentile(near2.dist_mm[lost], [10, 50, 90]).round(3).tolist()
+            res["lost: d_old quartiles"] = np.percentile(near.dist_mm[lost], [10, 50, 90]).round(3).tolist()
+        for name, f2 in (("base", None), ("refined", ff_of(un2, near2, err2, known2))):
+            if f2 is None and base_score is not None:
+                res[name] = base_score
+                continue
+            label, ids, how = B._emulated_person(f2 or ff_of(un0, near, err, known), xyz, heights, valid)
+            label &= served
+            sc = B.label_scores(label, ids, truth, served, None)
+            res[name] = {k: sc[k] for k in ("iou", "held", "label", "truth")}
+            if f2 is None:
+                base_score = res[name]
+        res["dIoU"] = round(res["refined"]["iou"] - res["base"]["iou"], 4)
+        res["dheld"] = round(res["refined"]["held"] - res["base"]["held"], 4)
+        print(json.dumps(res), flush=True)

@@ -459,38 +459,66 @@ REFINE_MIN_GAIN = 0.0
 REFINE_ANNEAL = 1.4
 #: ... leaving out the pixels whose depth lies inside a step between their neighbours' (:func:`between_steps`)
 REFINE_SKIP_BETWEEN = True
+#: ... the biweight's scale at the first step (mm; 0: the reach)
+REFINE_START_MM = 0.0
+#: ... leaving out the points in front of the fitted mesh along their camera ray by more than k × Err
+REFINE_FRONT = False
+#: ... kept only when the points it newly explains that lay in front of the fitted mesh are at most this share
+REFINE_FRONT_TAKE = 1.0
+#: ... refining only the instances whose unexplained points within the reach are at least this share of their points
+REFINE_MIN_FRINGE = 0.0
 
 
-def between_steps(xyz_mm: np.ndarray, margin_mm: np.ndarray, *, step_footprints: float = 10.0) -> np.ndarray:
+def between_steps(xyz_mm: np.ndarray, margin_mm: np.ndarray, *, step_footprints: float = 10.0,
+                  at: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: the valid pixels at a depth step — their valid 8-neighbours' depths span more than
     ``step_footprints`` footprints (|z| / f, f read off the cloud: :func:`focal_px`) — whose own depth lies more
     than ``margin_mm`` inside that span from both ends: a blend of the two sides, or a strip that runs down the step
-    (a mixed pixel, a renderer's curtain), not a point of either side. Reads the cloud only."""
+    (a mixed pixel, a renderer's curtain), not a point of either side. Reads the cloud only. ``at``: flat pixel
+    indices; the same test of those pixels only, (len(at),) bool."""
     a = _cloud(xyz_mm)
     H, W = a.shape[:2]
     z = np.where(np.isfinite(a).all(axis=2), a[..., 2].astype(np.float64), np.nan)
     f = focal_px(a)
     if not np.isfinite(f):
-        return np.zeros((H, W), bool)
+        return np.zeros((H, W) if at is None else (np.asarray(at).size,), bool)
     pad = np.pad(z, 1, constant_values=np.nan)
-    lo = np.full((H, W), np.inf)
-    hi = np.full((H, W), -np.inf)
+    m = np.asarray(margin_mm, np.float64)
+    if at is not None:
+        at = np.asarray(at, np.int64)
+        y, x = np.divmod(at, W)
+        zz = z.ravel()[at]
+        mm = m.ravel()[at] if m.ndim else m
+        lo = np.full(at.size, np.inf)
+        hi = np.full(at.size, -np.inf)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    nb = pad[1 + dy + y, 1 + dx + x]
+                    lo = np.fmin(lo, nb)
+                    hi = np.fmax(hi, nb)
+        with np.errstate(invalid="ignore"):
+            sub: np.ndarray = ((hi - lo > step_footprints * np.abs(zz) / f) & (zz - lo > mm) & (hi - zz > mm))
+        return sub
+    lo2 = np.full((H, W), np.inf)
+    hi2 = np.full((H, W), -np.inf)
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             if dy or dx:
-                nb = pad[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
-                lo = np.fmin(lo, nb)
-                hi = np.fmax(hi, nb)
-    m = np.asarray(margin_mm, np.float64)
+                nb2 = pad[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
+                lo2 = np.fmin(lo2, nb2)
+                hi2 = np.fmax(hi2, nb2)
     with np.errstate(invalid="ignore"):
-        out: np.ndarray = ((hi - lo > step_footprints * np.abs(z) / f) & (z - lo > m) & (hi - z > m))
+        out: np.ndarray = ((hi2 - lo2 > step_footprints * np.abs(z) / f) & (z - lo2 > m) & (hi2 - z > m))
     return out
 
 
 def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarray], mesh: tuple[np.ndarray, np.ndarray],
                  err: np.ndarray, *, k: float = K_ERR, reach_mm: float | None = None, steps: int | None = None,
                  max_points: int | None = None, min_points: int | None = None,
-                 min_gain: float | None = None) -> list[np.ndarray]:
+                 min_gain: float | None = None, start_mm: float | None = None, front: bool | None = None,
+                 front_take: float | None = None, min_fringe: float | None = None,
+                 skip_between: bool | None = None) -> list[np.ndarray]:
     """Each fitted instance's pose refined on the pixels it is the nearest surface of, its fringe included.
 
     A fit's own search matches the points within k × its Err (a trimmed ICP): a pose off by a turn about a face's
@@ -498,9 +526,13 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     — the part's fringe, at its depth edges — outside, where nothing pulls it back. Here instance i's points are the
     valid pixels whose nearest known surface it is, within ``reach_mm`` (``nearest``), an even subsample of at most
     ``max_points``; ``steps`` point-to-plane steps (Gauss-Newton on the closest points of the part's ``mesh``, each
-    point weighted by Tukey's biweight of its distance at ``reach_mm``) move the pose, which is kept only when more of
-    those pixels lie within ``k`` × their ``err`` of the refined mesh than of the fitted one. Pure: reads the cloud, the
-    fits and the distances; the truth never.
+    point weighted by Tukey's biweight of its distance at a scale going from ``start_mm`` toward its k × Err) move the
+    pose, which is kept only when more of those pixels lie within ``k`` × their ``err`` of the refined mesh than of the
+    fitted one. ``front``: the points that lie in front of the fitted mesh along their camera ray by more than k × their
+    Err are left out (what floats off a face toward the camera is no face of the part); ``front_take``: the refined pose
+    is kept only when the points it newly explains that lay in front of the fitted mesh are at most this share of the
+    instance's points; ``min_fringe``: an instance whose unexplained points within the reach are fewer than this share
+    of its points keeps its pose. Pure: reads the cloud, the fits and the distances; the truth never.
 
     Parameters
     ----------
@@ -524,6 +556,11 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     max_points = REFINE_MAX_POINTS if max_points is None else int(max_points)
     min_points = REFINE_MIN_POINTS if min_points is None else int(min_points)
     min_gain = REFINE_MIN_GAIN if min_gain is None else float(min_gain)
+    start_mm = (REFINE_START_MM if REFINE_START_MM > 0 else reach_mm) if start_mm is None else float(start_mm)
+    front = REFINE_FRONT if front is None else bool(front)
+    front_take = REFINE_FRONT_TAKE if front_take is None else float(front_take)
+    min_fringe = REFINE_MIN_FRINGE if min_fringe is None else float(min_fringe)
+    skip_between = REFINE_SKIP_BETWEEN if skip_between is None else bool(skip_between)
     a = _cloud(xyz_mm)
     out = [np.asarray(T, np.float64).copy() for T in poses]
     n = len(out)
@@ -533,16 +570,18 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     if not n or steps < 1:
         return out
     with np.errstate(invalid="ignore"):
-        sel = np.flatnonzero((code >= 0) & (code < n) & (d <= reach_mm) & np.isfinite(e)
-                             & ~(between_steps(a, float(k) * np.asarray(err, np.float64)).ravel() if REFINE_SKIP_BETWEEN
-                                 else np.zeros(code.size, bool)))
+        sel = np.flatnonzero((code >= 0) & (code < n) & (d <= reach_mm) & np.isfinite(e))
+    if skip_between and sel.size:
+        sel = sel[~between_steps(a, float(k) * np.asarray(err, np.float64), at=sel)]
     sel = sel[np.argsort(code[sel], kind="stable")]
     bounds = np.searchsorted(code[sel], np.arange(n + 1))
+    if min_fringe > 0:
+        fringe = np.bincount(code[sel], weights=d[sel] > float(k) * e[sel], minlength=n)
     # each instance's points: an even subsample of at most max_points, the instances with fewer than min_points left out
     take, group = [], []
     for i in range(n):
         c = int(bounds[i + 1] - bounds[i])
-        if c < min_points:
+        if c < min_points or (min_fringe > 0 and fringe[i] < min_fringe * c):
             continue
         j = np.arange(c) if c <= max_points else np.linspace(0, c - 1, max_points).astype(np.int64)
         take.append(sel[bounds[i] + j])
@@ -568,20 +607,34 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
         return ans["points"].numpy().astype(np.float64), ans["primitive_normals"].numpy().astype(np.float64)
 
     m = len(ids)
+    c0, n0 = closest(q0)
+    d0 = np.linalg.norm(q0 - c0, axis=1)
+    before = np.bincount(gi, weights=d0 <= tol, minlength=m)
+    ahead = np.zeros(q0.shape[0], bool)
+    if front or front_take < 1.0:
+        # the camera's centre in the part's frame, R^T (0 - t): a point is ahead of the fitted mesh when the ray from
+        # the camera through it meets the mesh more than k x Err beyond it
+        o = -np.einsum("nj,njk->nk", T0[gi, :3, 3], T0[gi, :3, :3])
+        ray = q0 - o
+        rn = np.linalg.norm(ray, axis=1)
+        ray /= np.where(rn > 0, rn, 1.0)[:, None]
+        hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(np.hstack([o, ray]), np.float32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+        th = hit["t_hit"].numpy().astype(np.float64)
+        with np.errstate(invalid="ignore"):
+            ahead = np.isfinite(th) & (th - rn > tol)
+    w0 = np.where(ahead, 0.0, 1.0) if front else np.ones(q0.shape[0])
     Rm = np.repeat(np.eye(3)[None], m, axis=0)  # D_i: q -> Rm q + tm, the motion that brings the points onto the mesh
     tm = np.zeros((m, 3))
-    c0, _ = closest(q0)
-    before = np.bincount(gi, weights=np.linalg.norm(q0 - c0, axis=1) <= tol, minlength=m)
     for step in range(int(steps)):
-        # the biweight's scale shrinks from the reach to each point's k x Err: the fringe moves the pose out of a
+        # the biweight's scale shrinks from start_mm to each point's k x Err: the fringe moves the pose out of a
         # trimmed fit's minimum, the last steps fit the band as the fit did
         f = REFINE_ANNEAL * step / max(int(steps) - 1, 1)
-        scale = reach_mm ** (1.0 - f) * np.maximum(tol, 1e-6) ** f
+        scale = start_mm ** (1.0 - f) * np.maximum(tol, 1e-6) ** f
         q = np.einsum("njk,nk->nj", Rm[gi], q0) + tm[gi]
-        c, nrm = closest(q)
+        c, nrm = (c0, n0) if step == 0 else closest(q)
         r = np.einsum("ij,ij->i", q - c, nrm)
         dist = np.linalg.norm(q - c, axis=1)
-        w = np.where(dist < scale, (1.0 - (dist / scale) ** 2) ** 2, 0.0)
+        w = w0 * np.where(dist < scale, (1.0 - (dist / scale) ** 2) ** 2, 0.0)
         J = np.hstack([np.cross(q, nrm), nrm])
         A = np.add.reduceat(np.einsum("ni,nj->nij", J * w[:, None], J), start, axis=0) + 1e-9 * np.eye(6)
         b = np.add.reduceat(-(J * (w * r)[:, None]), start, axis=0)
@@ -595,10 +648,13 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
         Rm, tm = dR @ Rm, np.einsum("mjk,mk->mj", dR, tm) + x[:, 3:]
     q = np.einsum("njk,nk->nj", Rm[gi], q0) + tm[gi]
     c, _ = closest(q)
-    after = np.bincount(gi, weights=np.linalg.norm(q - c, axis=1) <= tol, minlength=m)
+    now = np.linalg.norm(q - c, axis=1) <= tol
+    after = np.bincount(gi, weights=now, minlength=m)
+    took = np.bincount(gi, weights=now & ahead & (d0 > tol), minlength=m)
     count = np.bincount(gi, minlength=m)
     for j, i in enumerate(ids.tolist()):
-        if after[j] > before[j] and after[j] - before[j] >= min_gain * count[j]:  # p = T q0 and D q0 lies on the mesh: the refined pose is T D^-1
+        if (after[j] > before[j] and after[j] - before[j] >= min_gain * count[j]
+                and took[j] <= front_take * count[j]):  # p = T q0 and D q0 lies on the mesh: the refined pose is T D^-1
             Dinv = np.eye(4)
             Dinv[:3, :3] = Rm[j].T
             Dinv[:3, 3] = -Rm[j].T @ tm[j]
