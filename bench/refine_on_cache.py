@@ -52,7 +52,8 @@ for frame, job, ff, _cpu, _ in B.fitted_frames(log):
     base = base.reshape(H, W)
     poses = [np.asarray(f["pose"]) for f in ff.fits]
     stated = [float(f.get("err_mm", s_)) for f, s_ in zip(ff.fits, ff.part_err_mm)]
-    base_score, true_s = None, None
+    base_score, true_s, base_label = None, None, None
+    kind = np.asarray(frame.codes[layout.TRUTH_OUTLIER_KIND]) if layout.TRUTH_OUTLIER_KIND in frame.codes else None
     for kw in variants:
         for name, val in {**DEFAULTS, **kw}.items():  # constants of zcut.explained the refinement reads (REFINE_...)
             setattr(ex, name, type(DEFAULTS[name])(val))
@@ -94,6 +95,8 @@ for frame, job, ff, _cpu, _ in B.fitted_frames(log):
             res["lost: d_true / err2 quartiles"] = np.percentile(dt / err2[lost], [10, 25, 50, 75, 90]).round(2).tolist()
             res["lost: d_true <= k err2"] = int((dt <= ff.k * err2[lost]).sum())
             res["lost: d_new quartiles"] = np.percentile(near2.dist_mm[lost], [10, 50, 90]).round(3).tolist()
+            at_step = ex.between_steps(xyz, np.full(lost.shape, -np.inf), at=np.flatnonzero(lost.ravel()))
+            res["lost: at a depth step (10 footprints)"] = int(at_step.sum())
             res["lost: d_old quartiles"] = np.percentile(near.dist_mm[lost], [10, 50, 90]).round(3).tolist()
         for name, f2 in (("base", None), ("refined", ff_of(un2, near2, err2, known2))):
             if f2 is None and base_score is not None:
@@ -104,7 +107,11 @@ for frame, job, ff, _cpu, _ in B.fitted_frames(log):
             sc = B.label_scores(label, ids, truth, served, None)
             res[name] = {k: sc[k] for k in ("iou", "held", "label", "truth")}
             if f2 is None:
-                base_score = res[name]
+                base_score, base_label = res[name], label
+            elif kind is not None:  # the truth the label no longer holds, by the generator's outlier kind
+                gone = base_label & truth & ~label
+                res["label truth lost by kind"] = {int(c): int(n) for c, n in enumerate(np.bincount(kind[gone], minlength=9)) if n}
+                res["unexplained truth lost by kind"] = {int(c): int(n) for c, n in enumerate(np.bincount(kind[lost], minlength=9)) if n}
         res["dIoU"] = round(res["refined"]["iou"] - res["base"]["iou"], 4)
         res["dheld"] = round(res["refined"]["held"] - res["base"]["held"], 4)
         print(json.dumps(res), flush=True)

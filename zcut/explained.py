@@ -459,10 +459,18 @@ REFINE_MIN_GAIN = 0.0
 REFINE_ANNEAL = 1.4
 #: ... leaving out the pixels whose depth lies inside a step between their neighbours' (:func:`between_steps`)
 REFINE_SKIP_BETWEEN = True
+#: ... inside the step by more than this many times k × Err from both ends (a negative value: any pixel at a step)
+REFINE_BETWEEN_MARGIN = 1.0
+#: ... a step: the pixel's 8-neighbours' depths span more than this many footprints
+REFINE_BETWEEN_FOOTPRINTS = 10.0
+#: (mm) :func:`with_refined_poses` tests the pixels whose nearest surface lies within this only near a refined box
+REFINE_SLAB_MM = 5.0
 #: ... the biweight's scale at the first step (mm; 0: the reach)
 REFINE_START_MM = 0.0
 #: ... leaving out the points in front of the fitted mesh along their camera ray by more than k × Err
 REFINE_FRONT = False
+#: ... those whose ray meets a face of the mesh at most this far from head-on (the cosine; 0: any face)
+REFINE_FRONT_COS = 0.0
 #: ... kept only when the points it newly explains that lay in front of the fitted mesh are at most this share
 REFINE_FRONT_TAKE = 1.0
 #: ... refining only the instances whose unexplained points within the reach are at least this share of their points
@@ -470,36 +478,42 @@ REFINE_MIN_FRINGE = 0.0
 
 
 def between_steps(xyz_mm: np.ndarray, margin_mm: np.ndarray, *, step_footprints: float = 10.0,
-                  at: np.ndarray | None = None) -> np.ndarray:
+                  at: np.ndarray | None = None, footprint: np.ndarray | None = None) -> np.ndarray:
     """(H, W) bool: the valid pixels at a depth step — their valid 8-neighbours' depths span more than
-    ``step_footprints`` footprints (|z| / f, f read off the cloud: :func:`focal_px`) — whose own depth lies more
-    than ``margin_mm`` inside that span from both ends: a blend of the two sides, or a strip that runs down the step
-    (a mixed pixel, a renderer's curtain), not a point of either side. Reads the cloud only. ``at``: flat pixel
-    indices; the same test of those pixels only, (len(at),) bool."""
+    ``step_footprints`` footprints (|z| / f, f read off the cloud: :func:`focal_px`; or ``footprint``, (H, W)) — whose
+    own depth lies more than ``margin_mm`` inside that span from both ends: a blend of the two sides, or a strip that
+    runs down the step (a mixed pixel, a renderer's curtain), not a point of either side. Reads the cloud only.
+    ``at``: flat pixel indices; the same test of those pixels only, (len(at),) bool."""
     a = _cloud(xyz_mm)
     H, W = a.shape[:2]
-    z = np.where(np.isfinite(a).all(axis=2), a[..., 2].astype(np.float64), np.nan)
-    f = focal_px(a)
-    if not np.isfinite(f):
-        return np.zeros((H, W) if at is None else (np.asarray(at).size,), bool)
-    pad = np.pad(z, 1, constant_values=np.nan)
     m = np.asarray(margin_mm, np.float64)
     if at is not None:
         at = np.asarray(at, np.int64)
         y, x = np.divmod(at, W)
-        zz = z.ravel()[at]
+        flat = a.reshape(-1, 3)
+        zz = np.where(np.isfinite(flat[at]).all(axis=1), flat[at, 2].astype(np.float64), np.nan)
+        fp = (np.abs(zz) / focal_px(a) if footprint is None
+              else np.asarray(footprint, np.float64).ravel()[at])
         mm = m.ravel()[at] if m.ndim else m
         lo = np.full(at.size, np.inf)
         hi = np.full(at.size, -np.inf)
         for dy in (-1, 0, 1):
             for dx in (-1, 0, 1):
                 if dy or dx:
-                    nb = pad[1 + dy + y, 1 + dx + x]
+                    yy, xx = y + dy, x + dx
+                    inside = (yy >= 0) & (yy < H) & (xx >= 0) & (xx < W)
+                    j = np.where(inside, yy * W + xx, 0)
+                    pn = flat[j]
+                    nb = np.where(inside & np.isfinite(pn).all(axis=1), pn[:, 2].astype(np.float64), np.nan)
                     lo = np.fmin(lo, nb)
                     hi = np.fmax(hi, nb)
         with np.errstate(invalid="ignore"):
-            sub: np.ndarray = ((hi - lo > step_footprints * np.abs(zz) / f) & (zz - lo > mm) & (hi - zz > mm))
+            sub: np.ndarray = ((hi - lo > step_footprints * fp) & (zz - lo > mm) & (hi - zz > mm))
         return sub
+    z = np.where(np.isfinite(a).all(axis=2), a[..., 2].astype(np.float64), np.nan)
+    f = focal_px(a)
+    fpi = np.abs(z) / f if footprint is None else np.asarray(footprint, np.float64)
+    pad = np.pad(z, 1, constant_values=np.nan)
     lo2 = np.full((H, W), np.inf)
     hi2 = np.full((H, W), -np.inf)
     for dy in (-1, 0, 1):
@@ -509,7 +523,7 @@ def between_steps(xyz_mm: np.ndarray, margin_mm: np.ndarray, *, step_footprints:
                 lo2 = np.fmin(lo2, nb2)
                 hi2 = np.fmax(hi2, nb2)
     with np.errstate(invalid="ignore"):
-        out: np.ndarray = ((hi2 - lo2 > step_footprints * np.abs(z) / f) & (z - lo2 > m) & (hi2 - z > m))
+        out: np.ndarray = ((hi2 - lo2 > step_footprints * fpi) & (z - lo2 > m) & (hi2 - z > m))
     return out
 
 
@@ -518,7 +532,7 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
                  max_points: int | None = None, min_points: int | None = None,
                  min_gain: float | None = None, start_mm: float | None = None, front: bool | None = None,
                  front_take: float | None = None, min_fringe: float | None = None,
-                 skip_between: bool | None = None) -> list[np.ndarray]:
+                 skip_between: bool | None = None, footprint: np.ndarray | None = None) -> list[np.ndarray]:
     """Each fitted instance's pose refined on the pixels it is the nearest surface of, its fringe included.
 
     A fit's own search matches the points within k × its Err (a trimmed ICP): a pose off by a turn about a face's
@@ -529,7 +543,8 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     point weighted by Tukey's biweight of its distance at a scale going from ``start_mm`` toward its k × Err) move the
     pose, which is kept only when more of those pixels lie within ``k`` × their ``err`` of the refined mesh than of the
     fitted one. ``front``: the points that lie in front of the fitted mesh along their camera ray by more than k × their
-    Err are left out (what floats off a face toward the camera is no face of the part); ``front_take``: the refined pose
+    Err are left out (what floats off a face toward the camera is no face of the part; only where the ray meets a face
+whose normal's cosine with it is at least ``REFINE_FRONT_COS``); ``front_take``: the refined pose
     is kept only when the points it newly explains that lay in front of the fitted mesh are at most this share of the
     instance's points; ``min_fringe``: an instance whose unexplained points within the reach are fewer than this share
     of its points keeps its pose. Pure: reads the cloud, the fits and the distances; the truth never.
@@ -572,7 +587,8 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     with np.errstate(invalid="ignore"):
         sel = np.flatnonzero((code >= 0) & (code < n) & (d <= reach_mm) & np.isfinite(e))
     if skip_between and sel.size:
-        sel = sel[~between_steps(a, float(k) * np.asarray(err, np.float64), at=sel)]
+        sel = sel[~between_steps(a, REFINE_BETWEEN_MARGIN * float(k) * np.asarray(err, np.float64), at=sel,
+                                 step_footprints=REFINE_BETWEEN_FOOTPRINTS, footprint=footprint)]
     sel = sel[np.argsort(code[sel], kind="stable")]
     bounds = np.searchsorted(code[sel], np.arange(n + 1))
     if min_fringe > 0:
@@ -620,8 +636,9 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
         ray /= np.where(rn > 0, rn, 1.0)[:, None]
         hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(np.hstack([o, ray]), np.float32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
         th = hit["t_hit"].numpy().astype(np.float64)
+        facing = np.abs(np.einsum("ij,ij->i", hit["primitive_normals"].numpy().astype(np.float64), ray))
         with np.errstate(invalid="ignore"):
-            ahead = np.isfinite(th) & (th - rn > tol)
+            ahead = np.isfinite(th) & (th - rn > tol) & (facing >= REFINE_FRONT_COS)
     w0 = np.where(ahead, 0.0, 1.0) if front else np.ones(q0.shape[0])
     Rm = np.repeat(np.eye(3)[None], m, axis=0)  # D_i: q -> Rm q + tm, the motion that brings the points onto the mesh
     tm = np.zeros((m, 3))
@@ -687,7 +704,7 @@ def with_refined_poses(xyz_mm: np.ndarray, nearest: Nearest, surfaces: KnownSurf
         :func:`footprint_mm`.
     """
     err = err_image(nearest, surfaces, footprint, floor_mm=floor_mm)
-    new = refine_poses(xyz_mm, nearest, poses, mesh, err, k=k)
+    new = refine_poses(xyz_mm, nearest, poses, mesh, err, k=k, footprint=footprint)
     moved = [i for i, (a, b) in enumerate(zip(new, poses)) if not np.array_equal(a, np.asarray(b, np.float64))]
     if not moved:
         return [np.asarray(T, np.float64) for T in poses], surfaces, nearest
@@ -710,11 +727,22 @@ def with_refined_poses(xyz_mm: np.ndarray, nearest: Nearest, surfaces: KnownSurf
     cand = np.flatnonzero((judged & ~mine).ravel())
     hit = np.zeros(cand.size, bool)
     dc = d.ravel()[cand]
+    # the pixels whose surface lies within REFINE_SLAB_MM are tested only in the instance's slab along x widened by
+    # that much (outside it the box lies farther than their surface along x alone: the same answer); the others, all
+    qc = pts[cand]
+    near_ = dc <= REFINE_SLAB_MM
+    far = np.flatnonzero(~near_)
+    close = np.flatnonzero(near_)
+    close = close[np.argsort(qc[close, 0], kind="stable")]
+    xs = qc[close, 0]
+    widen = REFINE_SLAB_MM * (1.0 + 1e-6)
     for pv, _ in posed:
         lo, hi = pv.min(axis=0), pv.max(axis=0)
-        q = pts[cand]
-        gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo - q, q - hi)), axis=1)
-        hit |= ~(gap >= dc)
+        i0, i1 = np.searchsorted(xs, [lo[0] - widen, hi[0] + widen], side="left")
+        for ix in (far, close[i0:i1]):
+            q = qc[ix]
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo - q, q - hi)), axis=1)
+            hit[ix] |= ~(gap >= dc[ix])
     others = np.zeros(H * W, bool)
     others[cand[hit]] = True
     lut = np.asarray(moved, np.int32)
