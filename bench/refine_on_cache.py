@@ -97,6 +97,8 @@ for frame, job, ff, _cpu, _ in B.fitted_frames(log):
             res["lost: d_new quartiles"] = np.percentile(near2.dist_mm[lost], [10, 50, 90]).round(3).tolist()
             at_step = ex.between_steps(xyz, np.full(lost.shape, -np.inf), at=np.flatnonzero(lost.ravel()))
             res["lost: at a depth step (10 footprints)"] = int(at_step.sum())
+            res["lost: at a depth step (4 footprints)"] = int(ex.between_steps(
+                xyz, np.full(lost.shape, -np.inf), at=np.flatnonzero(lost.ravel()), step_footprints=4.0).sum())
             res["lost: d_old quartiles"] = np.percentile(near.dist_mm[lost], [10, 50, 90]).round(3).tolist()
         for name, f2 in (("base", None), ("refined", ff_of(un2, near2, err2, known2))):
             if f2 is None and base_score is not None:
