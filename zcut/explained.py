@@ -448,33 +448,22 @@ def fit_sigmas(nearest: Nearest, stated_mm: Sequence[float], *, where: np.ndarra
 #: :func:`refine_poses`: a fit's pose is refined on the pixels it is the nearest surface of within this many mm
 #: (its fringe included: the pixels farther than k × Err from it that no other surface is nearer to)
 REFINE_REACH_MM = 3.0
-#: ... with this many point-to-plane ICP steps, each point weighted by Tukey's biweight of its distance at the reach
-REFINE_STEPS = 8
+#: ... with this many point-to-plane ICP steps, each point weighted by Tukey's biweight of its distance
+REFINE_STEPS = 4
 #: ... on at most this many of its pixels (an even subsample); a fit nearest to fewer keeps its pose
-REFINE_MAX_POINTS = 3000
+REFINE_MAX_POINTS = 500
 REFINE_MIN_POINTS = 30
 #: ... and the refined pose is kept when it explains at least this share of those points more than the fitted one
 REFINE_MIN_GAIN = 0.0
 #: ... the biweight's scale going from the reach (first step) toward each point's k × Err (last step) by this share
 REFINE_ANNEAL = 1.4
-#: ... leaving out the pixels whose depth lies inside a step between their neighbours' (:func:`between_steps`)
-REFINE_SKIP_BETWEEN = True
-#: ... inside the step by more than this many times k × Err from both ends (a negative value: any pixel at a step)
-REFINE_BETWEEN_MARGIN = 1.0
-#: ... a step: the pixel's 8-neighbours' depths span more than this many footprints
-REFINE_BETWEEN_FOOTPRINTS = 10.0
+#: ... leaving out the pixels at a depth step: their 8-neighbours' depths span more than this many footprints
+#: (:func:`between_steps`; issue 29's second try, docs/accuracy.md: what the refined fits took there was truth)
+REFINE_STEP_FOOTPRINTS = 5.0
+#: ... refining only the instances whose unexplained points within the reach are at least this share of their points
+REFINE_MIN_FRINGE = 0.03
 #: (mm) :func:`with_refined_poses` tests the pixels whose nearest surface lies within this only near a refined box
 REFINE_SLAB_MM = 5.0
-#: ... the biweight's scale at the first step (mm; 0: the reach)
-REFINE_START_MM = 0.0
-#: ... leaving out the points in front of the fitted mesh along their camera ray by more than k × Err
-REFINE_FRONT = False
-#: ... those whose ray meets a face of the mesh at most this far from head-on (the cosine; 0: any face)
-REFINE_FRONT_COS = 0.0
-#: ... kept only when the points it newly explains that lay in front of the fitted mesh are at most this share
-REFINE_FRONT_TAKE = 1.0
-#: ... refining only the instances whose unexplained points within the reach are at least this share of their points
-REFINE_MIN_FRINGE = 0.0
 
 
 def between_steps(xyz_mm: np.ndarray, margin_mm: np.ndarray, *, step_footprints: float = 10.0,
@@ -530,9 +519,8 @@ def between_steps(xyz_mm: np.ndarray, margin_mm: np.ndarray, *, step_footprints:
 def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarray], mesh: tuple[np.ndarray, np.ndarray],
                  err: np.ndarray, *, k: float = K_ERR, reach_mm: float | None = None, steps: int | None = None,
                  max_points: int | None = None, min_points: int | None = None,
-                 min_gain: float | None = None, start_mm: float | None = None, front: bool | None = None,
-                 front_take: float | None = None, min_fringe: float | None = None,
-                 skip_between: bool | None = None, footprint: np.ndarray | None = None) -> list[np.ndarray]:
+                 min_gain: float | None = None, min_fringe: float | None = None,
+                 footprint: np.ndarray | None = None) -> list[np.ndarray]:
     """Each fitted instance's pose refined on the pixels it is the nearest surface of, its fringe included.
 
     A fit's own search matches the points within k × its Err (a trimmed ICP): a pose off by a turn about a face's
@@ -540,14 +528,13 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     — the part's fringe, at its depth edges — outside, where nothing pulls it back. Here instance i's points are the
     valid pixels whose nearest known surface it is, within ``reach_mm`` (``nearest``), an even subsample of at most
     ``max_points``; ``steps`` point-to-plane steps (Gauss-Newton on the closest points of the part's ``mesh``, each
-    point weighted by Tukey's biweight of its distance at a scale going from ``start_mm`` toward its k × Err) move the
+    point weighted by Tukey's biweight of its distance at a scale going from ``reach_mm`` toward its k × Err) move the
     pose, which is kept only when more of those pixels lie within ``k`` × their ``err`` of the refined mesh than of the
-    fitted one. ``front``: the points that lie in front of the fitted mesh along their camera ray by more than k × their
-    Err are left out (what floats off a face toward the camera is no face of the part; only where the ray meets a face
-whose normal's cosine with it is at least ``REFINE_FRONT_COS``); ``front_take``: the refined pose
-    is kept only when the points it newly explains that lay in front of the fitted mesh are at most this share of the
-    instance's points; ``min_fringe``: an instance whose unexplained points within the reach are fewer than this share
-    of its points keeps its pose. Pure: reads the cloud, the fits and the distances; the truth never.
+    fitted one. The pixels at a depth step (their 8-neighbours' depths span more than ``REFINE_STEP_FOOTPRINTS``
+    footprints: ``footprint``, else read off the cloud) neither pull nor count: a fit slid onto a blend or a renderer's
+    curtain down the step explains what lies off every surface. ``min_fringe``: an instance whose unexplained points
+    within the reach are fewer than this share of its points keeps its pose. Pure: reads the cloud, the fits and the
+    distances; the truth never.
 
     Parameters
     ----------
@@ -571,11 +558,7 @@ whose normal's cosine with it is at least ``REFINE_FRONT_COS``); ``front_take``:
     max_points = REFINE_MAX_POINTS if max_points is None else int(max_points)
     min_points = REFINE_MIN_POINTS if min_points is None else int(min_points)
     min_gain = REFINE_MIN_GAIN if min_gain is None else float(min_gain)
-    start_mm = (REFINE_START_MM if REFINE_START_MM > 0 else reach_mm) if start_mm is None else float(start_mm)
-    front = REFINE_FRONT if front is None else bool(front)
-    front_take = REFINE_FRONT_TAKE if front_take is None else float(front_take)
     min_fringe = REFINE_MIN_FRINGE if min_fringe is None else float(min_fringe)
-    skip_between = REFINE_SKIP_BETWEEN if skip_between is None else bool(skip_between)
     a = _cloud(xyz_mm)
     out = [np.asarray(T, np.float64).copy() for T in poses]
     n = len(out)
@@ -586,9 +569,9 @@ whose normal's cosine with it is at least ``REFINE_FRONT_COS``); ``front_take``:
         return out
     with np.errstate(invalid="ignore"):
         sel = np.flatnonzero((code >= 0) & (code < n) & (d <= reach_mm) & np.isfinite(e))
-    if skip_between and sel.size:
-        sel = sel[~between_steps(a, REFINE_BETWEEN_MARGIN * float(k) * np.asarray(err, np.float64), at=sel,
-                                 step_footprints=REFINE_BETWEEN_FOOTPRINTS, footprint=footprint)]
+    if sel.size:
+        sel = sel[~between_steps(a, np.float64(-np.inf), at=sel, step_footprints=REFINE_STEP_FOOTPRINTS,
+                                 footprint=footprint)]
     sel = sel[np.argsort(code[sel], kind="stable")]
     bounds = np.searchsorted(code[sel], np.arange(n + 1))
     if min_fringe > 0:
@@ -626,32 +609,18 @@ whose normal's cosine with it is at least ``REFINE_FRONT_COS``); ``front_take``:
     c0, n0 = closest(q0)
     d0 = np.linalg.norm(q0 - c0, axis=1)
     before = np.bincount(gi, weights=d0 <= tol, minlength=m)
-    ahead = np.zeros(q0.shape[0], bool)
-    if front or front_take < 1.0:
-        # the camera's centre in the part's frame, R^T (0 - t): a point is ahead of the fitted mesh when the ray from
-        # the camera through it meets the mesh more than k x Err beyond it
-        o = -np.einsum("nj,njk->nk", T0[gi, :3, 3], T0[gi, :3, :3])
-        ray = q0 - o
-        rn = np.linalg.norm(ray, axis=1)
-        ray /= np.where(rn > 0, rn, 1.0)[:, None]
-        hit = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(np.hstack([o, ray]), np.float32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
-        th = hit["t_hit"].numpy().astype(np.float64)
-        facing = np.abs(np.einsum("ij,ij->i", hit["primitive_normals"].numpy().astype(np.float64), ray))
-        with np.errstate(invalid="ignore"):
-            ahead = np.isfinite(th) & (th - rn > tol) & (facing >= REFINE_FRONT_COS)
-    w0 = np.where(ahead, 0.0, 1.0) if front else np.ones(q0.shape[0])
     Rm = np.repeat(np.eye(3)[None], m, axis=0)  # D_i: q -> Rm q + tm, the motion that brings the points onto the mesh
     tm = np.zeros((m, 3))
     for step in range(int(steps)):
-        # the biweight's scale shrinks from start_mm to each point's k x Err: the fringe moves the pose out of a
+        # the biweight's scale shrinks from the reach to each point's k x Err: the fringe moves the pose out of a
         # trimmed fit's minimum, the last steps fit the band as the fit did
         f = REFINE_ANNEAL * step / max(int(steps) - 1, 1)
-        scale = start_mm ** (1.0 - f) * np.maximum(tol, 1e-6) ** f
+        scale = reach_mm ** (1.0 - f) * np.maximum(tol, 1e-6) ** f
         q = np.einsum("njk,nk->nj", Rm[gi], q0) + tm[gi]
         c, nrm = (c0, n0) if step == 0 else closest(q)
         r = np.einsum("ij,ij->i", q - c, nrm)
         dist = np.linalg.norm(q - c, axis=1)
-        w = w0 * np.where(dist < scale, (1.0 - (dist / scale) ** 2) ** 2, 0.0)
+        w = np.where(dist < scale, (1.0 - (dist / scale) ** 2) ** 2, 0.0)
         J = np.hstack([np.cross(q, nrm), nrm])
         A = np.add.reduceat(np.einsum("ni,nj->nij", J * w[:, None], J), start, axis=0) + 1e-9 * np.eye(6)
         b = np.add.reduceat(-(J * (w * r)[:, None]), start, axis=0)
@@ -667,11 +636,9 @@ whose normal's cosine with it is at least ``REFINE_FRONT_COS``); ``front_take``:
     c, _ = closest(q)
     now = np.linalg.norm(q - c, axis=1) <= tol
     after = np.bincount(gi, weights=now, minlength=m)
-    took = np.bincount(gi, weights=now & ahead & (d0 > tol), minlength=m)
     count = np.bincount(gi, minlength=m)
     for j, i in enumerate(ids.tolist()):
-        if (after[j] > before[j] and after[j] - before[j] >= min_gain * count[j]
-                and took[j] <= front_take * count[j]):  # p = T q0 and D q0 lies on the mesh: the refined pose is T D^-1
+        if after[j] > before[j] and after[j] - before[j] >= min_gain * count[j]:  # p = T q0 and D q0 lies on the mesh: the refined pose is T D^-1
             Dinv = np.eye(4)
             Dinv[:3, :3] = Rm[j].T
             Dinv[:3, 3] = -Rm[j].T @ tm[j]

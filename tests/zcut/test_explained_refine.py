@@ -138,14 +138,14 @@ def test_with_refined_poses_gives_a_full_search_with_the_refined_poses():
     near = ex.nearest_surface(xyz, surfaces)
     foot = ex.footprint_mm(xyz, F_PX)
     got, surf2, near2 = ex.with_refined_poses(xyz, near, surfaces, poses, (v, t), [0.05, 0.05], foot)
-    assert _shift(got[0], a, v) < 0.1 and np.array_equal(got[1], b)
+    assert _shift(got[0], a, v) < 0.5 * _shift(off, a, v) and np.array_equal(got[1], b)  # 4 steps: most of the way
     full = ex.nearest_surface(xyz, dataclasses.replace(surfaces, parts=[(v @ T[:3, :3].T + T[:3, 3], t) for T in got]))
     np.testing.assert_array_equal(near2.surface, full.surface)
     np.testing.assert_array_equal(near2.dist_mm, full.dist_mm)
     assert surf2.part_err_mm == ex.fit_sigmas(full, [0.05, 0.05])
     before = ex.unexplained(near.dist_mm, ex.err_image(near, surfaces, foot)).sum()
     after = ex.unexplained(near2.dist_mm, ex.err_image(near2, surf2, foot)).sum()
-    assert after < 0.2 * before
+    assert after < 0.5 * before
     # nothing to refine: everything as given
     same = ex.with_refined_poses(xyz, full, surf2, got, (v, t), [0.05, 0.05], foot)
     assert same[1] is surf2 and same[2] is full
@@ -164,31 +164,6 @@ def test_between_steps_at_some_pixels_is_the_image_test_there():
     at = np.flatnonzero(np.isfinite(xyz).all(axis=2).ravel())[::3]
     np.testing.assert_array_equal(ex.between_steps(xyz, margin, at=at), full.ravel()[at])
     assert ex.between_steps(np.full_like(xyz, np.nan), margin, at=at).shape == at.shape
-
-
-def _patched(xyz: np.ndarray, lift_mm: float) -> np.ndarray:
-    """The box's top face with a patch lifted ``lift_mm`` toward the camera along the rays (a displaced patch)."""
-    out = xyz.copy()
-    p = out[45:60, 70:95]
-    out[45:60, 70:95] = p - lift_mm * p / np.linalg.norm(p, axis=2, keepdims=True)
-    return out
-
-
-def test_points_in_front_of_the_fit_do_not_pull_and_a_pose_that_takes_them_is_refused():
-    """A patch lifted 2 mm off the top face toward the camera: with REFINE_FRONT the misposed box still comes back and
-    the patch stays unexplained; with REFINE_FRONT_TAKE 0 a refinement that would explain some of it is refused."""
-    v, t, true, xyz = _scene()
-    xyz = _patched(xyz, 2.0)
-    off = true @ _pose(_rot("z", 4.0), np.array([1.0, -0.8, 0.0]))
-    near, err = _judge(xyz, v, t, off)
-    got = ex.refine_poses(xyz, near, [off], (v, t), err, front=True)
-    assert _shift(got[0], true, v) < 0.1
-    near2, err2 = _judge(xyz, v, t, got[0])
-    assert ex.unexplained(near2.dist_mm, err2)[45:60, 70:95].all()
-    # the true pose with the patch: a tilt toward the patch explains part of it and is refused at no share taken
-    near_t, err_t = _judge(xyz, v, t, true)
-    got_t = ex.refine_poses(xyz, near_t, [true], (v, t), err_t, front=False, front_take=0.0, start_mm=3.0)
-    assert _shift(got_t[0], true, v) < 0.02
 
 
 def test_an_instance_without_a_fringe_keeps_its_pose_at_min_fringe():
