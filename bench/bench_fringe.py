@@ -18,8 +18,9 @@ score.
 
 CONST: a constant of :mod:`zcut.explained` the method reads when it runs (``main=CONST:0`` the tree with it at 0,
 ``new=`` the tree as it is). The round of 2026-12-07c scored the pose refinement (``main=REFINE_STEPS:0,refine=``) in a
-checkout of its commit (docs/accuracy.md, "The fitted parts' fringes"); ``--rounds N`` runs each variant N times a frame
-(the order alternating), the median timed.
+checkout of its commit (docs/accuracy.md, "The fitted parts' fringes"), the round of 2026-12-07d its second try the same
+way in a checkout of a7bdbf2 with ``--rounds 3``; this tree keeps neither. ``--rounds N`` runs each variant N times a
+frame (the order alternating), the median timed.
 """
 
 from __future__ import annotations
