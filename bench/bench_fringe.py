@@ -18,7 +18,9 @@ score.
 
 CONST: a constant of :mod:`zcut.explained` the method reads when it runs (``main=CONST:0`` the tree with it at 0,
 ``new=`` the tree as it is). The round of 2026-12-07c scored the pose refinement (``main=REFINE_STEPS:0,refine=``) in a
-checkout of its commit (docs/accuracy.md, "The fitted parts' fringes"); this tree does not keep it.
+checkout of its commit (docs/accuracy.md, "The fitted parts' fringes"), the round of 2026-12-07d its second try the same
+way in a checkout of a7bdbf2 with ``--rounds 3``; this tree keeps neither. ``--rounds N`` runs each variant N times a
+frame (the order alternating), the median timed.
 """
 
 from __future__ import annotations
@@ -38,7 +40,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path[:0] = [str(ROOT), str(ROOT / "tests"), str(ROOT / "bench")]
 import bench_label_pageonly as B  # noqa: E402
 
-#: each variant's runs a frame (the last one timed)
+#: each variant's runs a frame (``--rounds``; the order alternating by frame and by round, the median timed)
 ROUNDS = 1
 
 
@@ -114,8 +116,8 @@ def run(log: Path, variants: list[tuple[str, dict[str, Any]]], frames: set[int])
             cpu: dict[str, list[float]] = {name: [] for name, _ in variants}
             # the session's own run of the method warmed every kernel: each variant once, the order alternating
             order = variants if frame.index % 2 == 0 else variants[::-1]
-            for _ in range(ROUNDS):
-                for name, sets in order:
+            for rnd in range(ROUNDS):
+                for name, sets in (order if rnd % 2 == 0 else order[::-1]):
                     with constants(sets):
                         t = time.process_time()
                         got[name] = fit_frame(frame, job, session.config, bin_model)
@@ -136,7 +138,8 @@ def run(log: Path, variants: list[tuple[str, dict[str, Any]]], frames: set[int])
                 row = {"log": log.name, "frame": frame.index, "variant": name, **B.log_kind(log),
                        "iou": sc["iou"], "held": sc["held"], "label": sc["label"], "truth": sc["truth"],
                        "fits": len(ff.fits), "unexplained": int(ff.un_pix.size),
-                       "cpu_first": round(cpu[name][0], 2), "cpu_method": round(cpu[name][-1], 2),
+                       "cpu_first": round(cpu[name][0], 2), "cpu_method": round(float(np.median(cpu[name])), 2),
+                       "cpu_runs": [round(c, 2) for c in cpu[name]],
                        "cpu_fits": round(cpu_fits, 2),
                        "explained": prf(method, truth), "inputs": how["inputs"]}
                 rows.append(row)
@@ -146,7 +149,7 @@ def run(log: Path, variants: list[tuple[str, dict[str, Any]]], frames: set[int])
 
 def summary(rows: list[dict[str, Any]], ref: str) -> list[str]:
     base = {(r["log"], r["frame"]): r for r in rows if r["variant"] == ref}
-    out = ["| log | frame | variant | IoU | Δ | held | Δ | explained F1 | Δ | CPU-s after the fits (2nd run) | Δ | "
+    out = ["| log | frame | variant | IoU | Δ | held | Δ | explained F1 | Δ | CPU-s after the fits (median of the runs) | Δ | "
            "Δ / the method's CPU (fits + the rest) |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         b = base[(r["log"], r["frame"])]
@@ -164,14 +167,17 @@ def summary(rows: list[dict[str, Any]], ref: str) -> list[str]:
 
 
 def main() -> int:
+    global ROUNDS
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("logs")
     ap.add_argument("--variants", required=True)
     ap.add_argument("--frames", default="")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--rounds", type=int, default=ROUNDS, help="each variant's runs a frame (the median timed)")
     ap.add_argument("--summary", type=Path, nargs="*", default=None, help="print the table of these JSON files")
     args = ap.parse_args()
     variants = parse_variants(args.variants)
+    ROUNDS = max(1, args.rounds)
     rows = []
     for lg in (Path(v) for v in args.logs.split(",") if v):
         rows += run(lg, variants, {int(v) for v in args.frames.split(",") if v})
