@@ -74,7 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                    help="uniqueness ratios (%%) whose rejected pixels are recorded, for the method stereo_uniqueness "
                         "(default 10)")
     r.add_argument("--reject-lr", metavar="LIST",
-                   help="left-right check disp12MaxDiff values (px), for the method stereo_lr (default 1)")
+                   help="left-right check tolerances (px: the right view matched on its own, zcut.stereo.left_right_rejected), "
+                        "for the method stereo_lr (default 1)")
     r.add_argument("--reject-speckle", metavar="LIST",
                    help="speckle filter settings WINDOW:RANGE (px), for the method stereo_speckle (default 100:2)")
     r.add_argument("--reject-texture", metavar="LIST",
