@@ -9,7 +9,7 @@ bench/diag_fringe.py matches them). For each unmatched instance with visible pix
 surface it is, within :data:`VISIBLE_MM`):
 
 - its visible pixels, its whole silhouette alone (its mesh ray cast through the intrinsics, nothing in front) and
-  the visible share;
+  the visible share (the pixels whose ray meets it first among the scene's instances / its silhouette alone);
 - the first pass's candidate region (:func:`zcut.fits.segment` on the zone, the fits' own jump parameters, no size
   bound) holding most of its visible pixels: its size, how many true instances hold ≥ :data:`MERGED_PX` of it;
 - its excess pixels (label, not the paper's truth, nearest true surface it) and the unexplained region
@@ -21,7 +21,9 @@ surface it is, within :data:`VISIBLE_MM`):
   else refused by what: the residual or the share explained, the overlap with a fit, the free space (each bound
   relaxed in turn to name the one that refuses).
 
-The causes' shares of the excess on unfitted instances are summed in pixels.
+The causes' shares of the excess on unfitted instances are summed in pixels. Per frame also the instances found (those
+of >= 40 visible px matched) and the fully visible ones matched (bench/bench_fits.py's rule: >= 95 % of the pixels
+the instance covers alone are its own first hits, >= 100 of them valid and at least half of them).
 
     cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/diag_unfit.py LOG [--fits-cache DIR] [--frames 0,1] [--json F]
 """
@@ -82,6 +84,24 @@ def _silhouette_px(v: np.ndarray, t: np.ndarray, K: tuple[float, float, float, f
                         o3d.core.Tensor(np.ascontiguousarray(t, np.uint32)))  # type: ignore[call-overload]
     hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()  # type: ignore[call-overload]
     return int(np.isfinite(hit).sum())
+
+
+def _first_hits(parts: list[tuple[np.ndarray, np.ndarray]], K: tuple[float, float, float, float], H: int,
+                W: int) -> np.ndarray:
+    """(H, W) the true instance each pixel's ray meets first (-1: none), all instances in one scene."""
+    import open3d as o3d
+
+    fx, fy, cx, cy = K
+    rr, cc = np.mgrid[0:H, 0:W]
+    d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones((H, W))], axis=-1).reshape(-1, 3)
+    rays = np.concatenate([np.zeros_like(d), d], axis=1).astype(np.float32)
+    scene = o3d.t.geometry.RaycastingScene()
+    for v, t in parts:
+        scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),  # type: ignore[call-overload]
+                            o3d.core.Tensor(np.ascontiguousarray(t, np.uint32)))  # type: ignore[call-overload]
+    ans = scene.cast_rays(o3d.core.Tensor(rays))  # type: ignore[call-overload]
+    gid = ans["geometry_ids"].numpy().astype(np.int64)
+    return np.where(np.isfinite(ans["t_hit"].numpy()), gid, -1).reshape(H, W)
 
 
 def _oracle(xyz: np.ndarray, valid: np.ndarray, mask: np.ndarray, model: Any, poses: np.ndarray, sigma: float,
@@ -178,12 +198,17 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True
     poses = np.stack([np.asarray(f["pose"], np.float64) for f in ff.fits if not f.get("sliver")]) \
         if ff.fits else np.zeros((0, 4, 4))
     rows = []
+    # fully visible (bench/bench_fits.py's rule): >= 95 % of the pixels the instance covers alone are its first hits
+    # in the scene, >= 100 of them valid and at least half of them
+    hits = _first_hits(parts, Kt, H, W)
+    seen = np.bincount(hits[hits >= 0], minlength=n_inst)[:n_inst]
+    seen_valid = np.bincount(hits[(hits >= 0) & valid], minlength=n_inst)[:n_inst]
     alone_n = np.zeros(n_inst, np.int64)
-    for i in np.flatnonzero(vis_n > 0):
+    for i in np.flatnonzero((vis_n > 0) | (seen > 0)):
         alone_n[i] = _silhouette_px(*parts[i], Kt, H, W)
     with np.errstate(invalid="ignore", divide="ignore"):
-        share_all = np.where(alone_n > 0, vis_n / np.maximum(alone_n, 1), 0.0)
-    full = (share_all >= 0.95) & (vis_n >= 100)
+        share_all = np.where(alone_n > 0, seen / np.maximum(alone_n, 1), 0.0)
+    full = (share_all >= 0.95) & (seen_valid >= 100) & (seen_valid >= 0.5 * seen)
     flat_inst = inst.ravel()
     flat_vis = visible.ravel()
     flat_non = (non & (tcode >= 0)).ravel()
@@ -195,7 +220,7 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True
         row: dict[str, Any] = {"instance": i, "visible_px": int(vis_n[i]), "excess_px": int(exc_n[i])}
         alone = int(alone_n[i])
         row["silhouette_px"] = alone
-        row["visible_share"] = round(vis_n[i] / alone, 3) if alone else None
+        row["visible_share"] = round(float(share_all[i]), 3) if alone else None
         own = flat_vis & (flat_inst == i)
         sl = seg_lab[own]
         sl = sl[sl > 0]
