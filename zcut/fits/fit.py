@@ -36,7 +36,6 @@ cloud itself when not given): never a log's truth or the poses in its metadata.
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TypeVar
 
@@ -362,13 +361,6 @@ def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
 
 def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams,
                  shifts: int = 0) -> tuple[np.ndarray, float]:
-    """(pose, err) of one instance of a general model in the region's points (:func:`_general`)."""
-    return _general(frame, flat, model, params, shifts=shifts)[0]
-
-
-def _general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParams, *,
-             shifts: int = 0, alternatives: int = 0,
-             avoid: _Claims | None = None) -> list[tuple[np.ndarray, float]]:
     """(pose, err) of one instance of a general model in the region's points.
 
     Every initial guess takes ``coarse_iterations`` ICP steps on an even subsample of
@@ -379,12 +371,7 @@ def _general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParam
 
     ``shifts`` > 0 (the second pass, a region that may show only part of an instance): the guesses
     also put ``shifts`` spread points of the model's facing side on the region's centroid
-    (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried.
-
-    ``alternatives`` > 0 (a region whose best pose was refused): instead, every guess's coarse pose is scored alone
-    (no early stop) and the best-scoring ones, at most ``alternatives``, whose coarse pose enters no solid of the
-    accepted fits ``avoid`` holds (:meth:`_Claims.overlapping`) and whose centroids lie 1 mm apart, are refined as the best one is: a sliver
-    whose best guess slid into a neighbour's solid gets its next guesses."""
+    (:func:`zcut.fits.icp.shifted_poses`), and the turns are not tried."""
     sub = _subsample(flat, params.max_points)
     pts = frame.xyz.reshape(-1, 3)[sub]
     coarse = np.ascontiguousarray(pts[_subsample(np.arange(len(pts)), COARSE_POINTS)])
@@ -428,18 +415,6 @@ def _general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParam
                 break
         return found
 
-    def refine(T0: np.ndarray) -> tuple[np.ndarray, float]:
-        """The full ICP from ``T0`` on the region's points, its Err, and the last refinement (``fine_points``)."""
-        T, rms, _ = icp(pts, model, T0, iterations=params.icp_iterations, edge_points=epts,
-                        **opts)
-        gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
-        d = _near_distances(model, pts, T, gate)
-        inl_mask = d <= gate
-        err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
-        if params.fine_points > 0 and np.isfinite(err):
-            T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
-        return T, err
-
     # the points' principal axes, once: the guesses' rotations and the turns' axis (the same arithmetic as
     # initial_rotations' own, so the same bits)
     c = pts.mean(axis=0)
@@ -451,8 +426,6 @@ def _general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParam
     if shifts:
         Rsh, tsh = shifted_guesses(pts, Rs, model, shifts)
         Rs, ts = np.concatenate([Rs, Rsh]), np.concatenate([ts, tsh])
-    if alternatives:
-        return _alternatives(Rs, ts, search, refine, model, alternatives, avoid)
     best = search(Rs, ts, stop=True)
     assert best is not None
     # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
@@ -468,34 +441,15 @@ def _general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitParam
     better = search(Rt_all, tt_all, stop=False)
     if better is not None and better[0] > best[0]:
         best = better
-    return [refine(best[1])]
-
-
-def _alternatives(Rs: np.ndarray, ts: np.ndarray, search: Callable[[np.ndarray, np.ndarray, bool],
-                                                                    tuple[float, np.ndarray] | None],
-                  refine: Callable[[np.ndarray], tuple[np.ndarray, float]], model: PartModel, n: int,
-                  avoid: _Claims | None) -> list[tuple[np.ndarray, float]]:
-    """:func:`_general`'s ``alternatives``: each guess's coarse pose scored alone, the ``n`` best whose solid enters
-    none of ``avoid``'s and whose centroids lie 1 mm apart refined (ties: the guesses' order)."""
-    scored = []
-    for i in range(len(Rs)):
-        got = search(np.ascontiguousarray(Rs[i:i + 1]), np.ascontiguousarray(ts[i:i + 1]), False)
-        if got is not None:
-            scored.append((-got[0], i, got[1]))
-    scored.sort(key=lambda s: (s[0], s[1]))
-    out: list[tuple[np.ndarray, float]] = []
-    centres: list[np.ndarray] = []
-    for _, _, T0 in scored:
-        c0 = T0[:3, :3] @ model.centroid + T0[:3, 3]
-        if any(float(np.linalg.norm(c0 - q)) < 1.0 for q in centres):
-            continue
-        centres.append(c0)
-        if avoid is not None and avoid.overlapping(T0):
-            continue
-        out.append(refine(T0))
-        if len(out) >= n:
-            break
-    return out
+    T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
+                    **opts)
+    gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
+    d = _near_distances(model, pts, T, gate)
+    inl_mask = d <= gate
+    err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
+    if params.fine_points > 0 and np.isfinite(err):
+        T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
+    return T, err
 
 
 def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,
@@ -783,33 +737,23 @@ def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: Fit
             cands = _candidates(frame, left, model, params, shifts=shifts)
             if claims is not None and len(cands) > 1:
                 cands = _ranked(frame, left, model, params, cands)
-        for round_ in range(2):
-            if round_:
-                # the second pass: a region whose best pose was refused for entering an accepted fit's solid gets
-                # its next guesses, those that do not (FitParams.seed_alternatives)
-                if (progress or many or not shifts or claims is None or params.seed_alternatives < 1
-                        or model.sphere_radius is not None
-                        or not any(claims.overlapping(T) for T, _ in cands)):
-                    break
-                cands = _general(frame, left, model, params, shifts=shifts, alternatives=params.seed_alternatives,
-                                 avoid=claims)
-            for T, err in cands:
-                stop_point()
-                attempts += 1
-                fit = _accept(frame, left, model, params, T, err, min_px, claims)
-                if fit is None:
-                    continue
-                accepted.append(fit[0])
-                known.append(fit[2])
-                explained[left[fit[1]]] = True
-                if claims is not None:
-                    for j in fit[3]:  # the accepted fits it replaces
-                        claims.kill(j)
-                    claims.add(T, err, fit[2])
-                left = left[~fit[1]]
-                progress = True
-                if len(left) < min_px or attempts >= params.max_instances_per_region:
-                    break
+        for T, err in cands:
+            stop_point()
+            attempts += 1
+            fit = _accept(frame, left, model, params, T, err, min_px, claims)
+            if fit is None:
+                continue
+            accepted.append(fit[0])
+            known.append(fit[2])
+            explained[left[fit[1]]] = True
+            if claims is not None:
+                for j in fit[3]:  # the accepted fits it replaces
+                    claims.kill(j)
+                claims.add(T, err, fit[2])
+            left = left[~fit[1]]
+            progress = True
+            if len(left) < min_px or attempts >= params.max_instances_per_region:
+                break
         if not progress and claims is not None:
             # a candidate refused for its overlap with a better fit: that fit's pixels leave the region
             # (its part is fitted), the rest is fitted on (other parts of it; the old fits accepted the

@@ -56,10 +56,6 @@ class FitParams:
         The second pass fits a region of unexplained pixels only when it holds at least
         ``min_region_px`` pixels and this share of the model's projected area (π (extent · f / z)²
         at the region's depth): smaller pieces of a part are too ambiguous to pose.
-    seed_alternatives : int
-        The second pass: when a region's best pose is refused and its solid enters an accepted fit's, at most this many of its next-best guesses (each
-        guess's coarse pose scored alone) whose solid enters no accepted fit's are refined and tried (docs/fits.md,
-        "Twentieth round"). 0: none.
     seed_err_ratio : float
         A fit of the second pass is accepted only when its Err is at most this many times the
         median Err of the first pass's fits (the frame's own noise, at least ``err_floor_mm``; at most
@@ -112,7 +108,6 @@ class FitParams:
     sphere_tolerance: float = 0.01
     seed_shifts: int = 4
     seed_min_share: float = 0.025
-    seed_alternatives: int = 1
     seed_err_ratio: float = 1.5
     seed_min_support: float = 0.5
     claim: bool = True
@@ -138,7 +133,6 @@ class FitParams:
         _number(self, "sphere_tolerance", gt=0, le=0.5)
         _number(self, "seed_shifts", ge=0, integer=True)
         _number(self, "seed_min_share", ge=0, le=1)
-        _number(self, "seed_alternatives", ge=0, integer=True)
         _number(self, "seed_err_ratio", gt=0)
         _number(self, "seed_min_support", ge=0, le=1)
         _boolean(self, "claim")
