@@ -28,6 +28,7 @@ surface whose fit states none.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -444,6 +445,327 @@ def fit_sigmas(nearest: Nearest, stated_mm: Sequence[float], *, where: np.ndarra
     return out
 
 
+#: :func:`refine_poses`: a fit's pose is refined on the pixels it is the nearest surface of within this many mm
+#: (its fringe included: the pixels farther than k × Err from it that no other surface is nearer to)
+REFINE_REACH_MM = 3.0
+#: ... with this many point-to-plane ICP steps, each point weighted by Tukey's biweight of its distance
+REFINE_STEPS = 4
+#: ... on at most this many of its pixels (an even subsample); a fit nearest to fewer keeps its pose
+REFINE_MAX_POINTS = 500
+REFINE_MIN_POINTS = 30
+#: ... and the refined pose is kept when it explains at least this share of those points more than the fitted one
+REFINE_MIN_GAIN = 0.0
+#: ... the biweight's scale going from the reach (first step) toward each point's k × Err (last step) by this share
+REFINE_ANNEAL = 1.4
+#: ... leaving out the pixels at a depth step: their 8-neighbours' depths span more than this many footprints
+#: (:func:`between_steps`; issue 29's second try, docs/accuracy.md: what the refined fits took there was truth)
+REFINE_STEP_FOOTPRINTS = 5.0
+#: ... refining only the instances whose unexplained points within the reach are at least this share of their points
+REFINE_MIN_FRINGE = 0.03
+#: ... and a refined pose is kept only when the instance's pixels at a depth step of this many footprints that it newly
+#: explains (unexplained by the fitted pose, explained by the refined one) are at most ``REFINE_STEP_TAKE`` × its pixels
+#: within the reach (issue 29's third try, docs/accuracy.md: the truth the second try took lay at a 4-footprint step)
+REFINE_GUARD_FOOTPRINTS = 4.0
+REFINE_STEP_TAKE = 0.01
+#: (mm) :func:`with_refined_poses` tests the pixels whose nearest surface lies within this only near a refined box
+REFINE_SLAB_MM = 5.0
+
+
+def between_steps(xyz_mm: np.ndarray, margin_mm: np.ndarray, *, step_footprints: float = 10.0,
+                  at: np.ndarray | None = None, footprint: np.ndarray | None = None) -> np.ndarray:
+    """(H, W) bool: the valid pixels at a depth step — their valid 8-neighbours' depths span more than
+    ``step_footprints`` footprints (|z| / f, f read off the cloud: :func:`focal_px`; or ``footprint``, (H, W)) — whose
+    own depth lies more than ``margin_mm`` inside that span from both ends: a blend of the two sides, or a strip that
+    runs down the step (a mixed pixel, a renderer's curtain), not a point of either side. Reads the cloud only.
+    ``at``: flat pixel indices; the same test of those pixels only, (len(at),) bool."""
+    a = _cloud(xyz_mm)
+    H, W = a.shape[:2]
+    m = np.asarray(margin_mm, np.float64)
+    if at is not None:
+        at = np.asarray(at, np.int64)
+        y, x = np.divmod(at, W)
+        flat = a.reshape(-1, 3)
+        zz = np.where(np.isfinite(flat[at]).all(axis=1), flat[at, 2].astype(np.float64), np.nan)
+        fp = (np.abs(zz) / focal_px(a) if footprint is None
+              else np.asarray(footprint, np.float64).ravel()[at])
+        mm = m.ravel()[at] if m.ndim else m
+        lo = np.full(at.size, np.inf)
+        hi = np.full(at.size, -np.inf)
+        for dy in (-1, 0, 1):
+            for dx in (-1, 0, 1):
+                if dy or dx:
+                    yy, xx = y + dy, x + dx
+                    inside = (yy >= 0) & (yy < H) & (xx >= 0) & (xx < W)
+                    j = np.where(inside, yy * W + xx, 0)
+                    pn = flat[j]
+                    nb = np.where(inside & np.isfinite(pn).all(axis=1), pn[:, 2].astype(np.float64), np.nan)
+                    lo = np.fmin(lo, nb)
+                    hi = np.fmax(hi, nb)
+        with np.errstate(invalid="ignore"):
+            sub: np.ndarray = ((hi - lo > step_footprints * fp) & (zz - lo > mm) & (hi - zz > mm))
+        return sub
+    z = np.where(np.isfinite(a).all(axis=2), a[..., 2].astype(np.float64), np.nan)
+    f = focal_px(a)
+    fpi = np.abs(z) / f if footprint is None else np.asarray(footprint, np.float64)
+    pad = np.pad(z, 1, constant_values=np.nan)
+    lo2 = np.full((H, W), np.inf)
+    hi2 = np.full((H, W), -np.inf)
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            if dy or dx:
+                nb2 = pad[1 + dy:1 + dy + H, 1 + dx:1 + dx + W]
+                lo2 = np.fmin(lo2, nb2)
+                hi2 = np.fmax(hi2, nb2)
+    with np.errstate(invalid="ignore"):
+        out: np.ndarray = ((hi2 - lo2 > step_footprints * fpi) & (z - lo2 > m) & (hi2 - z > m))
+    return out
+
+
+def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarray], mesh: tuple[np.ndarray, np.ndarray],
+                 err: np.ndarray, *, k: float = K_ERR, reach_mm: float | None = None, steps: int | None = None,
+                 max_points: int | None = None, min_points: int | None = None,
+                 min_gain: float | None = None, min_fringe: float | None = None,
+                 step_take: float | None = None, footprint: np.ndarray | None = None) -> list[np.ndarray]:
+    """Each fitted instance's pose refined on the pixels it is the nearest surface of, its fringe included.
+
+    A fit's own search matches the points within k × its Err (a trimmed ICP): a pose off by a turn about a face's
+    normal or a slide along it keeps the face's points within the band and leaves the points of the faces beside it
+    — the part's fringe, at its depth edges — outside, where nothing pulls it back. Here instance i's points are the
+    valid pixels whose nearest known surface it is, within ``reach_mm`` (``nearest``), an even subsample of at most
+    ``max_points``; ``steps`` point-to-plane steps (Gauss-Newton on the closest points of the part's ``mesh``, each
+    point weighted by Tukey's biweight of its distance at a scale going from ``reach_mm`` toward its k × Err) move the
+    pose, which is kept only when more of those pixels lie within ``k`` × their ``err`` of the refined mesh than of the
+    fitted one. The pixels at a depth step (their 8-neighbours' depths span more than ``REFINE_STEP_FOOTPRINTS``
+    footprints: ``footprint``, else read off the cloud) neither pull nor count: a fit slid onto a blend or a renderer's
+    curtain down the step explains what lies off every surface. ``min_fringe``: an instance whose unexplained points
+    within the reach are fewer than this share of its points keeps its pose. ``step_take`` (default
+    ``REFINE_STEP_TAKE``; negative: no guard): a refined pose is kept only when the instance's pixels within the reach at
+    a ``REFINE_GUARD_FOOTPRINTS`` step that it newly explains are at most this share of its pixels within the reach. Pure: reads the cloud, the fits and the
+    distances; the truth never.
+
+    Parameters
+    ----------
+    xyz_mm : (H, W, 3) float ndarray
+    nearest : Nearest
+        Every judged pixel's nearest known surface with the fits posed at ``poses`` (instance i has code i).
+    poses : sequence of (4, 4) float ndarray
+        Model (mm) -> camera (mm).
+    mesh : (vertices (n, 3), triangles (m, 3))
+        The part's mesh in its own frame (mm).
+    err : (H, W) float ndarray
+        Each pixel's Err (:func:`err_image`).
+
+    Returns
+    -------
+    list of (4, 4) float64 ndarray
+        The poses, refined where that explains more of the instance's pixels, else as given.
+    """
+    reach_mm = REFINE_REACH_MM if reach_mm is None else float(reach_mm)
+    steps = REFINE_STEPS if steps is None else int(steps)
+    max_points = REFINE_MAX_POINTS if max_points is None else int(max_points)
+    min_points = REFINE_MIN_POINTS if min_points is None else int(min_points)
+    min_gain = REFINE_MIN_GAIN if min_gain is None else float(min_gain)
+    min_fringe = REFINE_MIN_FRINGE if min_fringe is None else float(min_fringe)
+    step_take = REFINE_STEP_TAKE if step_take is None else float(step_take)
+    a = _cloud(xyz_mm)
+    out = [np.asarray(T, np.float64).copy() for T in poses]
+    n = len(out)
+    code = np.asarray(nearest.surface).ravel()
+    d = np.asarray(nearest.dist_mm, np.float64).ravel()
+    e = np.asarray(err, np.float64).ravel()
+    if not n or steps < 1:
+        return out
+    with np.errstate(invalid="ignore"):
+        sel = np.flatnonzero((code >= 0) & (code < n) & (d <= reach_mm) & np.isfinite(e))
+    reached = np.bincount(code[sel], minlength=n) if sel.size else np.zeros(n, np.int64)
+    guard = sel[:0]
+    if sel.size and step_take >= 0:  # the unexplained pixels at a guard step: a refined pose may newly explain them
+        with np.errstate(invalid="ignore"):
+            gs = sel[d[sel] > float(k) * e[sel]]
+        guard = gs[between_steps(a, np.float64(-np.inf), at=gs, step_footprints=REFINE_GUARD_FOOTPRINTS,
+                                 footprint=footprint)]
+    if sel.size:
+        sel = sel[~between_steps(a, np.float64(-np.inf), at=sel, step_footprints=REFINE_STEP_FOOTPRINTS,
+                                 footprint=footprint)]
+    sel = sel[np.argsort(code[sel], kind="stable")]
+    bounds = np.searchsorted(code[sel], np.arange(n + 1))
+    if min_fringe > 0:
+        fringe = np.bincount(code[sel], weights=d[sel] > float(k) * e[sel], minlength=n)
+    # each instance's points: an even subsample of at most max_points, the instances with fewer than min_points left out
+    take, group = [], []
+    for i in range(n):
+        c = int(bounds[i + 1] - bounds[i])
+        if c < min_points or (min_fringe > 0 and fringe[i] < min_fringe * c):
+            continue
+        j = np.arange(c) if c <= max_points else np.linspace(0, c - 1, max_points).astype(np.int64)
+        take.append(sel[bounds[i] + j])
+        group.append(np.full(j.size, i))
+    if not take:
+        return out
+    idx, g = np.concatenate(take), np.concatenate(group)
+    ids, start = np.unique(g, return_index=True)  # g is sorted: the instances refined and where each begins
+    gi = np.searchsorted(ids, g)
+    p = a.reshape(-1, 3)[idx].astype(np.float64)
+    tol = float(k) * e[idx]
+    T0 = np.stack([out[i] for i in ids])
+    q0 = np.einsum("nj,njk->nk", p - T0[gi, :3, 3], T0[gi, :3, :3])  # in the part's frame: R^T (p - t)
+    import open3d as o3d
+
+    v, t = (np.asarray(x) for x in mesh)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(v, np.float32)),  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+                        o3d.core.Tensor(np.ascontiguousarray(t, np.uint32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+
+    def closest(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ans = scene.compute_closest_points(o3d.core.Tensor(np.ascontiguousarray(q, np.float32)))  # type: ignore[call-overload]  # Open3D's stub makes dtype and device required
+        return ans["points"].numpy().astype(np.float64), ans["primitive_normals"].numpy().astype(np.float64)
+
+    m = len(ids)
+    c0, n0 = closest(q0)
+    d0 = np.linalg.norm(q0 - c0, axis=1)
+    before = np.bincount(gi, weights=d0 <= tol, minlength=m)
+    Rm = np.repeat(np.eye(3)[None], m, axis=0)  # D_i: q -> Rm q + tm, the motion that brings the points onto the mesh
+    tm = np.zeros((m, 3))
+    for step in range(int(steps)):
+        # the biweight's scale shrinks from the reach to each point's k x Err: the fringe moves the pose out of a
+        # trimmed fit's minimum, the last steps fit the band as the fit did
+        f = REFINE_ANNEAL * step / max(int(steps) - 1, 1)
+        scale = reach_mm ** (1.0 - f) * np.maximum(tol, 1e-6) ** f
+        q = np.einsum("njk,nk->nj", Rm[gi], q0) + tm[gi]
+        c, nrm = (c0, n0) if step == 0 else closest(q)
+        r = np.einsum("ij,ij->i", q - c, nrm)
+        dist = np.linalg.norm(q - c, axis=1)
+        w = np.where(dist < scale, (1.0 - (dist / scale) ** 2) ** 2, 0.0)
+        J = np.hstack([np.cross(q, nrm), nrm])
+        A = np.add.reduceat(np.einsum("ni,nj->nij", J * w[:, None], J), start, axis=0) + 1e-9 * np.eye(6)
+        b = np.add.reduceat(-(J * (w * r)[:, None]), start, axis=0)
+        x = np.linalg.solve(A, b[..., None])[..., 0]
+        th = np.linalg.norm(x[:, :3], axis=1)
+        kx = x[:, :3] / np.where(th > 0, th, 1.0)[:, None]
+        K = np.zeros((m, 3, 3))
+        K[:, 0, 1], K[:, 0, 2], K[:, 1, 0] = -kx[:, 2], kx[:, 1], kx[:, 2]
+        K[:, 1, 2], K[:, 2, 0], K[:, 2, 1] = -kx[:, 0], -kx[:, 1], kx[:, 0]
+        dR = np.eye(3) + np.sin(th)[:, None, None] * K + (1.0 - np.cos(th))[:, None, None] * (K @ K)
+        Rm, tm = dR @ Rm, np.einsum("mjk,mk->mj", dR, tm) + x[:, 3:]
+    q = np.einsum("njk,nk->nj", Rm[gi], q0) + tm[gi]
+    c, _ = closest(q)
+    now = np.linalg.norm(q - c, axis=1) <= tol
+    after = np.bincount(gi, weights=now, minlength=m)
+    count = np.bincount(gi, minlength=m)
+    taken = np.zeros(m)
+    slot = np.full(n, -1)
+    slot[ids] = np.arange(m)
+    guard = guard[slot[code[guard]] >= 0]
+    if guard.size:  # the guard's pixels before (the fitted mesh) and after (the refined one), in the part's frame
+        gj = slot[code[guard]]
+        pg = a.reshape(-1, 3)[guard].astype(np.float64)
+        qg = np.einsum("nj,njk->nk", pg - T0[gj, :3, 3], T0[gj, :3, :3])
+        tg = float(k) * e[guard]
+        cg, _ = closest(qg)
+        was_un = np.linalg.norm(qg - cg, axis=1) > tg
+        qg2 = np.einsum("njk,nk->nj", Rm[gj], qg) + tm[gj]
+        cg2, _ = closest(qg2)
+        taken = np.bincount(gj, weights=was_un & (np.linalg.norm(qg2 - cg2, axis=1) <= tg), minlength=m)
+    for j, i in enumerate(ids.tolist()):
+        if step_take >= 0 and taken[j] > step_take * reached[i]:
+            continue
+        if after[j] > before[j] and after[j] - before[j] >= min_gain * count[j]:  # p = T q0 and D q0 lies on the mesh: the refined pose is T D^-1
+            Dinv = np.eye(4)
+            Dinv[:3, :3] = Rm[j].T
+            Dinv[:3, 3] = -Rm[j].T @ tm[j]
+            out[i] = out[i] @ Dinv
+    return out
+
+
+def with_refined_poses(xyz_mm: np.ndarray, nearest: Nearest, surfaces: KnownSurfaces, poses: Sequence[np.ndarray],
+                       mesh: tuple[np.ndarray, np.ndarray], stated_mm: Sequence[float], footprint: np.ndarray, *,
+                       k: float = K_ERR, floor_mm: float = 0.0, zone: np.ndarray | None = None
+                       ) -> tuple[list[np.ndarray], KnownSurfaces, Nearest]:
+    """(poses, surfaces, nearest) with every fit's pose refined on its pixels, its fringe included (:func:`refine_poses`,
+    on the Err :func:`err_image` gives ``nearest`` and ``surfaces``): the refined instances posed in ``surfaces``, the
+    judged pixels' nearest surface searched again where a refined instance was or may now be the nearest (the result of
+    a full search with the refined poses, :func:`nearest_surface`), and every instance's residual measured again from
+    the residuals the fits state (``stated_mm``; :func:`fit_sigmas` over ``zone``). Unchanged when no pose moves.
+
+    Parameters
+    ----------
+    xyz_mm : (H, W, 3) float ndarray
+    nearest : Nearest
+        The judged pixels' nearest surfaces with the fits at ``poses`` (instance i is ``surfaces.parts[i]``).
+    surfaces : KnownSurfaces
+    poses : sequence of (4, 4) float ndarray
+    mesh : (vertices (n, 3), triangles (m, 3))
+        The part's mesh in its own frame (mm): instance i is ``vertices @ R_i.T + t_i``.
+    stated_mm : sequence of float
+        The residuals the fits state (``PartFit.err_mm``).
+    footprint : (H, W) float ndarray
+        :func:`footprint_mm`.
+    """
+    err = err_image(nearest, surfaces, footprint, floor_mm=floor_mm)
+    new = refine_poses(xyz_mm, nearest, poses, mesh, err, k=k, footprint=footprint)
+    moved = [i for i, (a, b) in enumerate(zip(new, poses)) if not np.array_equal(a, np.asarray(b, np.float64))]
+    if not moved:
+        return [np.asarray(T, np.float64) for T in poses], surfaces, nearest
+    v, t = (np.asarray(x) for x in mesh)
+    posed = [(v @ new[i][:3, :3].T + new[i][:3, 3], t) for i in moved]
+    parts = list(surfaces.parts)
+    for i, m in zip(moved, posed):
+        parts[i] = m
+    surfaces = dataclasses.replace(surfaces, parts=parts)
+    a = _cloud(xyz_mm)
+    H, W = a.shape[:2]
+    d = np.asarray(nearest.dist_mm, np.float64)
+    code = np.asarray(nearest.surface)
+    judged = ~np.isnan(d)
+    was = np.zeros(len(poses) + 1, bool)
+    was[moved] = True
+    mine = judged & was[np.where((code >= 0) & (code < len(poses)), code, len(poses))]
+    # a pixel of another surface may now be nearer to a refined instance only when it is nearer to its box
+    pts = a.reshape(-1, 3)
+    cand = np.flatnonzero((judged & ~mine).ravel())
+    hit = np.zeros(cand.size, bool)
+    dc = d.ravel()[cand]
+    # the pixels whose surface lies within REFINE_SLAB_MM are tested only in the instance's slab along x widened by
+    # that much (outside it the box lies farther than their surface along x alone: the same answer); the others, all
+    qc = pts[cand]
+    near_ = dc <= REFINE_SLAB_MM
+    far = np.flatnonzero(~near_)
+    close = np.flatnonzero(near_)
+    close = close[np.argsort(qc[close, 0], kind="stable")]
+    xs = qc[close, 0]
+    widen = REFINE_SLAB_MM * (1.0 + 1e-6)
+    for pv, _ in posed:
+        lo, hi = pv.min(axis=0), pv.max(axis=0)
+        i0, i1 = np.searchsorted(xs, [lo[0] - widen, hi[0] + widen], side="left")
+        for ix in (far, close[i0:i1]):
+            q = qc[ix]
+            gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo - q, q - hi)), axis=1)
+            hit[ix] |= ~(gap >= dc[ix])
+    others = np.zeros(H * W, bool)
+    others[cand[hit]] = True
+    lut = np.asarray(moved, np.int32)
+    dist, surf = d.astype(np.float32).copy(), code.astype(np.int32).copy()
+    # the refined instances' distances of both sets; a pixel of a refined instance that is no nearer to them than it was
+    # to its own before may be nearest to any surface: searched again among every one
+    look = (mine | others.reshape(H, W))
+    got = nearest_surface(a, KnownSurfaces(parts=posed, part_err_mm=[0.0] * len(posed)), where=look)
+    gd = np.asarray(got.dist_mm, np.float64)
+    gc = np.where(got.surface >= 0, lut[np.maximum(got.surface, 0)], SURFACE_NONE)
+    with np.errstate(invalid="ignore"):
+        closer = others.reshape(H, W) & (gd < d)
+        keep_own = mine & (gd <= d)
+    dist[closer | keep_own] = gd[closer | keep_own]
+    surf[closer | keep_own] = gc[closer | keep_own]
+    again = mine & ~keep_own
+    if again.any():
+        full = nearest_surface(a, surfaces, where=again)
+        dist[again] = full.dist_mm[again]
+        surf[again] = full.surface[again]
+    near = Nearest(dist, surf)
+    surfaces = dataclasses.replace(surfaces, part_err_mm=fit_sigmas(near, stated_mm, where=zone))
+    return new, surfaces, near
+
+
 def local_surface_distance(xyz_mm: np.ndarray, valid: np.ndarray, *, where: np.ndarray | None = None,
                            params: EdgeSurfaceParams | None = None) -> np.ndarray:
     """(H, W) distance (mm) of the pixels in ``where`` (default: every valid one) to the edge-aware
@@ -563,8 +885,10 @@ __all__ = [
     "local_surface_params",
     "local_surface_distance",
     "nearest_surface",
+    "refine_poses",
     "residual_sigma",
     "surface_sigmas",
     "unexplained",
     "with_local_surface",
+    "with_refined_poses",
 ]
