@@ -458,15 +458,11 @@ REFINE_MIN_GAIN = 0.0
 #: ... the biweight's scale going from the reach (first step) toward each point's k × Err (last step) by this share
 REFINE_ANNEAL = 1.4
 #: ... leaving out the pixels at a depth step: their 8-neighbours' depths span more than this many footprints
-#: (:func:`between_steps`; issue 29's second try, docs/accuracy.md: what the refined fits took there was truth)
-REFINE_STEP_FOOTPRINTS = 5.0
+#: (:func:`between_steps`; issue 29's second and third tries, docs/accuracy.md: what the refined fits took there was
+#: truth, at a 4-footprint step on the second try's report frame)
+REFINE_STEP_FOOTPRINTS = 4.0
 #: ... refining only the instances whose unexplained points within the reach are at least this share of their points
 REFINE_MIN_FRINGE = 0.03
-#: ... and a refined pose is kept only when the instance's pixels at a depth step of this many footprints that it newly
-#: explains (unexplained by the fitted pose, explained by the refined one) are at most ``REFINE_STEP_TAKE`` × its pixels
-#: within the reach (issue 29's third try, docs/accuracy.md: the truth the second try took lay at a 4-footprint step)
-REFINE_GUARD_FOOTPRINTS = 4.0
-REFINE_STEP_TAKE = 0.01
 #: (mm) :func:`with_refined_poses` tests the pixels whose nearest surface lies within this only near a refined box
 REFINE_SLAB_MM = 5.0
 
@@ -525,7 +521,7 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
                  err: np.ndarray, *, k: float = K_ERR, reach_mm: float | None = None, steps: int | None = None,
                  max_points: int | None = None, min_points: int | None = None,
                  min_gain: float | None = None, min_fringe: float | None = None,
-                 step_take: float | None = None, footprint: np.ndarray | None = None) -> list[np.ndarray]:
+                 footprint: np.ndarray | None = None) -> list[np.ndarray]:
     """Each fitted instance's pose refined on the pixels it is the nearest surface of, its fringe included.
 
     A fit's own search matches the points within k × its Err (a trimmed ICP): a pose off by a turn about a face's
@@ -538,9 +534,7 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     fitted one. The pixels at a depth step (their 8-neighbours' depths span more than ``REFINE_STEP_FOOTPRINTS``
     footprints: ``footprint``, else read off the cloud) neither pull nor count: a fit slid onto a blend or a renderer's
     curtain down the step explains what lies off every surface. ``min_fringe``: an instance whose unexplained points
-    within the reach are fewer than this share of its points keeps its pose. ``step_take`` (default
-    ``REFINE_STEP_TAKE``; negative: no guard): a refined pose is kept only when the instance's pixels within the reach at
-    a ``REFINE_GUARD_FOOTPRINTS`` step that it newly explains are at most this share of its pixels within the reach. Pure: reads the cloud, the fits and the
+    within the reach are fewer than this share of its points keeps its pose. Pure: reads the cloud, the fits and the
     distances; the truth never.
 
     Parameters
@@ -566,7 +560,6 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     min_points = REFINE_MIN_POINTS if min_points is None else int(min_points)
     min_gain = REFINE_MIN_GAIN if min_gain is None else float(min_gain)
     min_fringe = REFINE_MIN_FRINGE if min_fringe is None else float(min_fringe)
-    step_take = REFINE_STEP_TAKE if step_take is None else float(step_take)
     a = _cloud(xyz_mm)
     out = [np.asarray(T, np.float64).copy() for T in poses]
     n = len(out)
@@ -577,13 +570,6 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
         return out
     with np.errstate(invalid="ignore"):
         sel = np.flatnonzero((code >= 0) & (code < n) & (d <= reach_mm) & np.isfinite(e))
-    reached = np.bincount(code[sel], minlength=n) if sel.size else np.zeros(n, np.int64)
-    guard = sel[:0]
-    if sel.size and step_take >= 0:  # the unexplained pixels at a guard step: a refined pose may newly explain them
-        with np.errstate(invalid="ignore"):
-            gs = sel[d[sel] > float(k) * e[sel]]
-        guard = gs[between_steps(a, np.float64(-np.inf), at=gs, step_footprints=REFINE_GUARD_FOOTPRINTS,
-                                 footprint=footprint)]
     if sel.size:
         sel = sel[~between_steps(a, np.float64(-np.inf), at=sel, step_footprints=REFINE_STEP_FOOTPRINTS,
                                  footprint=footprint)]
@@ -652,23 +638,7 @@ def refine_poses(xyz_mm: np.ndarray, nearest: Nearest, poses: Sequence[np.ndarra
     now = np.linalg.norm(q - c, axis=1) <= tol
     after = np.bincount(gi, weights=now, minlength=m)
     count = np.bincount(gi, minlength=m)
-    taken = np.zeros(m)
-    slot = np.full(n, -1)
-    slot[ids] = np.arange(m)
-    guard = guard[slot[code[guard]] >= 0]
-    if guard.size:  # the guard's pixels before (the fitted mesh) and after (the refined one), in the part's frame
-        gj = slot[code[guard]]
-        pg = a.reshape(-1, 3)[guard].astype(np.float64)
-        qg = np.einsum("nj,njk->nk", pg - T0[gj, :3, 3], T0[gj, :3, :3])
-        tg = float(k) * e[guard]
-        cg, _ = closest(qg)
-        was_un = np.linalg.norm(qg - cg, axis=1) > tg
-        qg2 = np.einsum("njk,nk->nj", Rm[gj], qg) + tm[gj]
-        cg2, _ = closest(qg2)
-        taken = np.bincount(gj, weights=was_un & (np.linalg.norm(qg2 - cg2, axis=1) <= tg), minlength=m)
     for j, i in enumerate(ids.tolist()):
-        if step_take >= 0 and taken[j] > step_take * reached[i]:
-            continue
         if after[j] > before[j] and after[j] - before[j] >= min_gain * count[j]:  # p = T q0 and D q0 lies on the mesh: the refined pose is T D^-1
             Dinv = np.eye(4)
             Dinv[:3, :3] = Rm[j].T
