@@ -341,11 +341,6 @@ def run_explained(frame: Frame, zone: Zone, config: Any, *, judge_above_rim: boo
     if p.part_model and SLIVER_MIN_PX > 0 and fits:  # the slivers no fit took (zcut.sliver_fits)
         fits, surfaces, near, slivers = _with_slivers(xyz, zone, near, surfaces, fits, v, t, prepared, intr,
                                                       footprint, judged, p)
-    if p.part_model and fits and ex.REFINE_STEPS > 0:  # each fit's pose refined on its pixels, its fringe included
-        poses, surfaces, near = ex.with_refined_poses(xyz, near, surfaces, [f.pose for f in fits], (v, t),
-                                                      [f.err_mm for f in fits], footprint, k=p.k,
-                                                      floor_mm=p.err_floor_mm, zone=zone.zone)
-        fits = tuple(dataclasses.replace(f, pose=T) for f, T in zip(fits, poses))
     if local is not None:
         near = ex.with_local_surface(near, local)
         surfaces = dataclasses.replace(surfaces, local_err_mm=ex.local_sigma(
