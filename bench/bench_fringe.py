@@ -19,7 +19,8 @@ score.
 CONST: a constant of :mod:`zcut.explained` the method reads when it runs (``main=CONST:0`` the tree with it at 0,
 ``new=`` the tree as it is). The round of 2026-12-07c scored the pose refinement (``main=REFINE_STEPS:0,refine=``) in a
 checkout of its commit (docs/accuracy.md, "The fitted parts' fringes"), the round of 2026-12-07d its second try the same
-way in a checkout of a7bdbf2 with ``--rounds 3``; this tree keeps neither. ``--rounds N`` runs each variant N times a
+way in a checkout of a7bdbf2 with ``--rounds 3``, and its third try (h/fringe3) in a checkout of 5ac3e8e; this tree
+keeps none of them. ``--rounds N`` runs each variant N times a
 frame (the order alternating), the median timed.
 """
 
