@@ -765,12 +765,11 @@ def print_timeline(run: dict, label: str, cores: int = 2) -> None:
     print(f"    {'cores used':18s} " + "".join(str(min(9, round(c / TIMELINE_BIN_S))) for c in total))
 
 
-def timeline_table(log: Path, against: Path | None, repeats: int, in_flight: int | None,
-                   save: Path | None = None) -> None:
-    """``--timeline``: traced runs (:func:`thread_accounting` keeping every sample) of this tree and ``against``'s,
-    alternating ``repeats`` times; per tree the idle shares of two quiet cores of every run and their median, then
-    the last run's causes and timeline (:func:`print_timeline`). ``save``: a folder the runs are written to (one
-    JSON file each), for :func:`print_timeline` later."""
+def alternating_children(flag: str, log: Path, against: Path | None, repeats: int, in_flight: int | None, *,
+                         save: Path | None = None) -> tuple[dict[str, list[dict]], list[float]]:
+    """Run ``child_json(tree, flag, log, in_flight)`` in this tree and ``against``'s (layer ``default``), alternating
+    ``repeats`` times; returns each tree's runs ("this tree", "previous") and the load average before each run.
+    ``save``: a folder each run is also written to (one JSON file a run)."""
     this_tree = Path(__file__).resolve().parents[1]
     trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
     got: dict[str, list[dict]] = {k: [] for k in trees}
@@ -778,12 +777,22 @@ def timeline_table(log: Path, against: Path | None, repeats: int, in_flight: int
     for _ in range(max(repeats, 1)):
         for name, tree in trees.items():
             loads.append(os.getloadavg()[0])
-            got[name].append(child_json(tree, "--timeline-json", str(log), str(in_flight or 0), layer="default"))
+            got[name].append(child_json(tree, flag, str(log), str(in_flight or 0), layer="default"))
             if save is not None:
                 import json
 
                 save.mkdir(parents=True, exist_ok=True)
                 (save / f"{name.replace(' ', '_')}_{len(got[name])}.json").write_text(json.dumps(got[name][-1]))
+    return got, loads
+
+
+def timeline_table(log: Path, against: Path | None, repeats: int, in_flight: int | None,
+                   save: Path | None = None) -> None:
+    """``--timeline``: traced runs (:func:`thread_accounting` keeping every sample) of this tree and ``against``'s,
+    alternating ``repeats`` times; per tree the idle shares of two quiet cores of every run and their median, then
+    the last run's causes and timeline (:func:`print_timeline`). ``save``: a folder the runs are written to (one
+    JSON file each), for :func:`print_timeline` later."""
+    got, loads = alternating_children("--timeline-json", log, against, repeats, in_flight, save=save)
     print(f"\nwhere two quiet cores would idle in a whole replay of {log.name}, {in_flight or 'the default number of'} "
           f"frame(s) in flight, {warm_passes()} warm pass(es); load average {min(loads):.1f}-{max(loads):.1f} on "
           f"{os.cpu_count()} cores; the tracer samples every {1000 * TRACE_PERIOD_S:.0f} ms")
@@ -837,14 +846,7 @@ def thread_table(log: Path, against: Path | None, repeats: int, in_flight: int |
     own ``configure_process`` chooses, ``in_flight`` frames at once, None: its default), alternating ``repeats``
     times (one subprocess each), the medians per thread group; then, per tree, where each thread group waits
     (the medians of its wall shares, its places of the last run) and the last run's frames in time."""
-    this_tree = Path(__file__).resolve().parents[1]
-    trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
-    got: dict[str, list[dict]] = {k: [] for k in trees}
-    loads = []
-    for _ in range(max(repeats, 1)):
-        for name, tree in trees.items():
-            loads.append(os.getloadavg()[0])
-            got[name].append(child_json(tree, "--threads-json", str(log), str(in_flight or 0), layer="default"))
+    got, loads = alternating_children("--threads-json", log, against, repeats, in_flight)
     print(f"\nwhere a whole replay's CPU goes, per thread, {log.name} ({got['this tree'][0]['frames']} frames after a "
           f"warm-up one, {warm_passes()} warm pass(es), {in_flight or 'the default number of'} frame(s) in flight, "
           f"layer {got['this tree'][0].get('layer')}); medians of {repeats} alternating runs, CPU ms per frame "
@@ -853,15 +855,15 @@ def thread_table(log: Path, against: Path | None, repeats: int, in_flight: int |
     groups = sorted({g for rs in got.values() for r in rs for g in r["threads"]})
     med = {name: {g: [statistics.median(r["threads"].get(g, [0, 0, 0, 0])[i] for r in rs) for i in range(3)]
                   for g in groups} for name, rs in got.items()}
-    head = f"  {'thread':20s}" + "".join(f" {name + ' user/sys/faults':>32s}" for name in trees)
+    head = f"  {'thread':20s}" + "".join(f" {name + ' user/sys/faults':>32s}" for name in got)
     print(head)
     for g in sorted(groups, key=lambda g: -sum(med["this tree"][g][:2])):
         print(f"  {g:20s}" + "".join(f" {med[name][g][0]:10.1f} {med[name][g][1]:10.1f} {med[name][g][2]:10.0f}"
-                                     for name in trees))
+                                     for name in got))
     for k, label in (("user_ms", "process user"), ("sys_ms", "process sys"), ("minflt", "minor faults"),
                      ("cpu_ms", "process CPU"), ("wall_ms", "wall"), ("sampler_ms", "(the tracer's own CPU)")):
         print(f"  {label:20s}" + "".join(f" {statistics.median(r.get(k, 0.0) for r in got[name]):32.1f}"
-                                         for name in trees))
+                                         for name in got))
     for name, rs in got.items():
         print_waits(name, rs)
 
