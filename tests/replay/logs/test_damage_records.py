@@ -8,7 +8,7 @@ import pickle
 
 import numpy as np
 import pytest
-from mcap.writer import CompressionType, Writer
+from raw_mcap import write_raw_log
 
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
@@ -87,21 +87,12 @@ def test_kinds_of_skipped_frames(tmp_path):
         return rm.encode_image(stamp_ns=stamp, frame_id="c", height=h, width=w, encoding="mono8", step=w,
                                data=bytes(h * w))
 
-    with open(q, "wb") as f:
-        w = Writer(f, compression=CompressionType.ZSTD)
-        w.start(profile="ros2", library="test")
-        ids = {}
-        for topic, typ in (("/p", rm.POINTCLOUD2), ("/m", rm.IMAGE)):
-            sid = w.register_schema(name=typ, encoding="ros2msg", data=rm.SCHEMAS[typ].encode())
-            ids[topic] = w.register_channel(topic=topic, message_encoding="cdr", schema_id=sid)
-        msgs = [("/p", cloud(1)), ("/m", mono(H, W, 1)),
-                ("/p", cloud(2)), ("/m", mono(H, W + 1, 2)),  # a mask of the wrong size
-                ("/p", cloud(3, 64, 64)), ("/m", mono(H, W, 3)),  # over max_pixels
-                ("/p", cloud(4)[:40]),  # cut short: not even its header decodes
-                ("/p", cloud(5)), ("/m", mono(H, W, 5))]
-        for i, (topic, data) in enumerate(msgs):
-            w.add_message(ids[topic], log_time=i + 1, publish_time=i + 1, data=data)
-        w.finish()
+    write_raw_log(q, {"/p": rm.POINTCLOUD2, "/m": rm.IMAGE},
+                  [("/p", cloud(1)), ("/m", mono(H, W, 1)),
+                   ("/p", cloud(2)), ("/m", mono(H, W + 1, 2)),  # a mask of the wrong size
+                   ("/p", cloud(3, 64, 64)), ("/m", mono(H, W, 3)),  # over max_pixels
+                   ("/p", cloud(4)[:40]),  # cut short: not even its header decodes
+                   ("/p", cloud(5)), ("/m", mono(H, W, 5))])
     stream = LogReader(q, max_pixels=1000).frames()
     assert [f.index for f in stream] == [0, 4]
     by_frame = {d.frame_index: d for d in stream.damage}

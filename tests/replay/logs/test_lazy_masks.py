@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from raw_mcap import write_raw_log
 
 from replay.logs import layout
 from replay.logs import ros2_msgs as rm
@@ -106,8 +107,6 @@ def test_a_frame_kept_unread_is_never_written_over(tmp_path):
 def test_a_bad_mask_still_skips_its_frame_when_paired(tmp_path):
     """The checks run when the frame is paired (not when a mask is read): a mask whose bytes are short skips its
     frame with the damage record it had."""
-    from mcap.writer import CompressionType, Writer
-
     from replay.logs.damage import DamageKind
 
     h, w = 6, 8
@@ -121,20 +120,11 @@ def test_a_bad_mask_still_skips_its_frame_when_paired(tmp_path):
                                data=data)
 
     q = tmp_path / "bad.mcap"
-    with open(q, "wb") as f:
-        wr = Writer(f, compression=CompressionType.ZSTD)
-        wr.start(profile="ros2", library="test")
-        ids = {}
-        for topic, typ in ((layout.CLOUD, rm.POINTCLOUD2), (layout.TRUTH_OUTLIERS, rm.IMAGE)):
-            sid = wr.register_schema(name=typ, encoding="ros2msg", data=rm.SCHEMAS[typ].encode())
-            ids[topic] = wr.register_channel(topic=topic, message_encoding="cdr", schema_id=sid)
-        msgs = [(layout.CLOUD, cloud(1)), (layout.TRUTH_OUTLIERS, mono(1, bytes(h * w))),
-                (layout.CLOUD, cloud(2)), (layout.TRUTH_OUTLIERS, mono(2, bytes(h * w - 3))),  # short
-                (layout.CLOUD, cloud(3)), (layout.TRUTH_OUTLIERS, mono(3, bytes(h * w), encoding="mono16")),
-                (layout.CLOUD, cloud(4)), (layout.TRUTH_OUTLIERS, mono(4, b"\x07" * (h * w)))]
-        for i, (topic, data) in enumerate(msgs):
-            wr.add_message(ids[topic], log_time=i + 1, publish_time=i + 1, data=data)
-        wr.finish()
+    write_raw_log(q, {layout.CLOUD: rm.POINTCLOUD2, layout.TRUTH_OUTLIERS: rm.IMAGE},
+                  [(layout.CLOUD, cloud(1)), (layout.TRUTH_OUTLIERS, mono(1, bytes(h * w))),
+                   (layout.CLOUD, cloud(2)), (layout.TRUTH_OUTLIERS, mono(2, bytes(h * w - 3))),  # short
+                   (layout.CLOUD, cloud(3)), (layout.TRUTH_OUTLIERS, mono(3, bytes(h * w), encoding="mono16")),
+                   (layout.CLOUD, cloud(4)), (layout.TRUTH_OUTLIERS, mono(4, b"\x07" * (h * w)))])
     stream = LogReader(q).frames()
     got = list(stream)
     assert [f.index for f in got] == [0, 3]

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 from log_helpers import read_frames
 from mcap.writer import CompressionType, Writer
+from raw_mcap import write_raw_log
 
 from replay.errors import LogFormatError
 from replay.logs import layout
@@ -276,17 +277,10 @@ def test_malformed_first_camera_info_is_passed_over(tmp_path):
     cloud = rm.encode_cloud(stamp_ns=2, frame_id="c", height=H, width=W, fields=rm.XYZ_FIELDS, point_step=16,
                             row_step=16 * W, data=rm.arrays_to_cloud_data(np.ones((H, W, 3), np.float32), None),
                             is_dense=True)
-    with open(p, "wb") as f:
-        w = Writer(f, compression=CompressionType.NONE)
-        w.start(profile="ros2", library="test")
-        ids = {}
-        for t, typ in ((layout.CAMERA_INFO, rm.CAMERAINFO), (layout.CLOUD, rm.POINTCLOUD2)):
-            sid = w.register_schema(name=typ, encoding="ros2msg", data=rm.SCHEMAS[typ].encode())
-            ids[t] = w.register_channel(topic=t, message_encoding="cdr", schema_id=sid)
-        w.add_message(ids[layout.CAMERA_INFO], log_time=1, publish_time=1, data=good[:30])  # truncated
-        w.add_message(ids[layout.CAMERA_INFO], log_time=2, publish_time=2, data=good)
-        w.add_message(ids[layout.CLOUD], log_time=2, publish_time=2, data=cloud)
-        w.finish()
+    write_raw_log(p, {layout.CAMERA_INFO: rm.CAMERAINFO, layout.CLOUD: rm.POINTCLOUD2},
+                  [(layout.CAMERA_INFO, good[:30]),  # truncated
+                   (layout.CAMERA_INFO, good), (layout.CLOUD, cloud)],
+                  times=[1, 2, 2], compression=CompressionType.NONE)
     r = LogReader(p)
     assert r.intrinsics == K and r.info_topic == layout.CAMERA_INFO
     got, damage = read_frames(p)
