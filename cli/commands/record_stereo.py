@@ -220,7 +220,7 @@ def run(args: argparse.Namespace) -> int:
                 xyz = xyz_from_depth_mm(disparity_to_depth_mm(disp, cal), cal)
                 # the pixels of the cloud each post-filter would invalidate (the same run, that filter on)
                 valid = np.isfinite(xyz[..., 2])
-                rejected = [rejected_pixels(scene.left, scene.right, p, post, matched=valid) for _, post in posts]
+                rejected = [rejected_pixels(scene.left, scene.right, p, post, matched=valid, disparity=disp) for _, post in posts]
                 h, wd = xyz.shape[:2]
                 stamp = i * 1_000_000_000
                 kw = {"stamp_ns": stamp, "frame_id": args.frame_id}
