@@ -201,6 +201,7 @@ def frame_rows(log: Path, frame: Any, job: Any, ff: Any, *, min_share: float, co
             "by_what": dict(Counter(what.tolist())),
             "by_place_what": dict(Counter(f"{a} | {w}" for a, w in zip(ring.tolist(), what.tolist()))),
             "by_kind": dict(Counter(str(B_kind(int(x))) for x in kind[rb, cb].tolist())),
+            "by_cause": dict(Counter(causes(st["ring"][b], edges[rb, cb], kind[rb, cb], what).tolist())),
             "paper_truth": int(off_truth[rb, cb].sum()),
             "depth_edge": int(edges[rb, cb].sum()),
             "first_hit_self": int((hits[rb, cb] == i).sum()),
@@ -242,6 +243,19 @@ def frame_rows(log: Path, frame: Any, job: Any, ff: Any, *, min_share: float, co
         rows.append(row)
     return {"log": log.name, "frame": frame.index, **B.log_kind(log), "sigma": sigma, "k": k,
             "instances": n_inst, "rows": rows}
+
+
+def causes(ring: np.ndarray, edge: np.ndarray, kind: np.ndarray, what: np.ndarray) -> np.ndarray:
+    """Each seen-through pixel's cause, the first that applies: the silhouette's outer two rings; inside, at a depth
+    edge of the scan; inside, off the edges, an interreflection ghost (the generator's kind); inside, off the edges,
+    its point on a surface beneath (another instance, the bin or table); else other."""
+    from replay.logs import layout
+
+    inter = next(c for c, n in layout.OUTLIER_KINDS.items() if n == "interreflection")
+    beneath = (what == "on another instance") | (what == "on the bin or table")
+    return np.select([ring <= 2, edge, kind == inter, beneath],
+                     ["rim (rings 1-2)", "inside, depth edge", "inside, interreflection ghost",
+                      "inside, a surface beneath"], "inside, other")
 
 
 #: the free-space test's candidate readings: which silhouette pixels count (numerator and denominator)
