@@ -618,39 +618,108 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
     return rows, seeded
 
 
-def fitted_frames(log: Path) -> Iterator[tuple[Any, Any, Any, float, Any]]:
-    """(frame, job, fits, CPU-s of :func:`annotate.fits.fit_frame`, the session's config) of every frame of ``log``,
-    prepared and fitted as the page's server does; with :data:`FITS_CACHE` each frame's (frame, job, fits, CPU-s) is
-    pickled there on the first run (``<log stem>_<digest of the log's bytes>_f<frame>.pkl``) and read back on the
-    next ones (then the config is None: no ``--seed-px`` from a cache), so one fitting pass serves several scorings.
-    The cache is the tree's: a tree whose fits differ needs its own DIR."""
+def fitted_frames(log: Path, frames: Sequence[int] | None = None) -> Iterator[tuple[Any, Any, Any, float, Any]]:
+    """(frame, job, fits, CPU-s of :func:`annotate.fits.fit_frame`, the session's config) of the frames ``frames``
+    of ``log`` (frame indices; default every one), in log order, prepared and fitted as the page's server does.
+
+    With :data:`FITS_CACHE` each frame's (frame, job, fits, CPU-s) is pickled there when it is fitted
+    (``<log stem>_<digest of the log's bytes>_f<frame>.pkl``) and read back on later runs (then the config is None:
+    no ``--seed-px`` from a cache), so one fitting pass serves several scorings; a frame without its pickle is fitted
+    then, the others read back (the pipeline runs only over the missing frames: each frame's result depends on that
+    frame alone: docs/pipeline.md, the session's seed). A run over every frame writes the indices the
+    log gave (``<log stem>_<digest>_frames.json``), so that the next such run opens no session. The cache is the
+    tree's: a tree whose fits differ needs its own DIR."""
     import hashlib
     import pickle
 
     from annotate.fits import Job, fit_frame
 
-    stem = ""
+    base = ""
+    cached: dict[int, Path] = {}
     if FITS_CACHE is not None:
         FITS_CACHE.mkdir(parents=True, exist_ok=True)
         with log.open("rb") as fh:
-            stem = f"{log.stem}_{hashlib.file_digest(fh, 'blake2b').hexdigest()[:16]}_f"
-        got = sorted(FITS_CACHE.glob(f"{stem}*.pkl"), key=lambda q: int(q.stem[len(stem):]))
-        if got:
-            for q in got:
-                with q.open("rb") as fh:
-                    frame, job, ff, cpu = pickle.load(fh)
-                yield frame, job, ff, cpu, None
-            return
+            base = f"{log.stem}_{hashlib.file_digest(fh, 'blake2b').hexdigest()[:16]}"
+        for q in FITS_CACHE.glob(f"{base}_f*.pkl"):
+            tail = q.stem[len(base) + 2:]
+            if tail.isdigit():
+                cached[int(tail)] = q
+    every = frames is None
+    wanted = None if every else sorted({int(i) for i in frames or ()})
+    if every and FITS_CACHE is not None:
+        with contextlib.suppress(OSError, ValueError, TypeError):
+            wanted = sorted(int(i) for i in json.loads((FITS_CACHE / f"{base}_frames.json").read_text()))
+
+    def read(i: int) -> tuple[Any, Any, Any, float, Any]:
+        with cached[i].open("rb") as fh:
+            frame, job, ff, cpu = pickle.load(fh)
+        return frame, job, ff, cpu, None
+
+    if wanted is not None and all(i in cached for i in wanted):
+        for i in wanted:
+            yield read(i)
+        return
     session = pipeline_options().open_session(log)
-    for frame, r in session.results():
+    if wanted is None:
+        n = session.reader.n_frames
+        wanted = None if n is None else list(range(n))
+
+    def fitted(frame: Any, r: Any) -> tuple[Any, Any, Any, float, Any]:
         job = Job.of(r)
         t = time.process_time()
         ff = fit_frame(frame, job, session.config, session.prepared.model if session.prepared is not None else None)
         cpu = time.process_time() - t
         if FITS_CACHE is not None:
-            with (FITS_CACHE / f"{stem}{frame.index}.pkl").open("wb") as fh:
+            with (FITS_CACHE / f"{base}_f{frame.index}.pkl").open("wb") as fh:
                 pickle.dump((frame, job, ff, cpu), fh, protocol=pickle.HIGHEST_PROTOCOL)
-        yield frame, job, ff, cpu, session.config
+        return frame, job, ff, cpu, session.config
+
+    given: list[int] = []
+    if wanted is None:  # a log without a summary: one pass over every frame, the cached ones not fitted again
+        for frame, r in session.results():
+            given.append(frame.index)
+            yield read(frame.index) if frame.index in cached else fitted(frame, r)
+    else:
+        i = 0
+        while i < len(wanted):
+            if wanted[i] in cached:
+                given.append(wanted[i])
+                yield read(wanted[i])
+                i += 1
+                continue
+            j = i  # a run of consecutive frames without a pickle: one pass of the pipeline
+            while j + 1 < len(wanted) and wanted[j + 1] == wanted[j] + 1 and wanted[j + 1] not in cached:
+                j += 1
+            for frame, r in session.results(frames=(wanted[i], wanted[j] + 1)):
+                given.append(frame.index)
+                yield fitted(frame, r)
+            i = j + 1
+    if every and FITS_CACHE is not None:
+        (FITS_CACHE / f"{base}_frames.json").write_text(json.dumps(given))
+
+
+def diag_arguments(description: str) -> argparse.ArgumentParser:
+    """The arguments every ``bench/diag_*.py`` takes: the log, ``--fits-cache DIR`` (:data:`FITS_CACHE`),
+    ``--frames`` (comma-separated indices, default every one) and ``--json F``; a diagnostic adds its own."""
+    ap = argparse.ArgumentParser(description=description)
+    ap.add_argument("log", type=Path)
+    ap.add_argument("--fits-cache", type=Path, default=None, metavar="DIR")
+    ap.add_argument("--frames", default="", help="comma-separated frame indices (default: every one)")
+    ap.add_argument("--json", type=Path, default=None)
+    return ap
+
+
+def diag_frames(args: argparse.Namespace) -> Iterator[tuple[Any, Any, Any]]:
+    """(frame, job, fits) of the frames :func:`diag_arguments`' ``args`` ask for, fitted only where needed
+    (:func:`fitted_frames`, with ``args.fits_cache`` as :data:`FITS_CACHE`)."""
+    global FITS_CACHE
+    FITS_CACHE = args.fits_cache
+    try:
+        frames = [int(v) for v in args.frames.split(",") if v.strip()] or None
+    except ValueError:
+        raise SystemExit(f"--frames: comma-separated frame indices, not {args.frames!r}") from None
+    for frame, job, ff, _cpu, _config in fitted_frames(args.log, frames):
+        yield frame, job, ff
 
 
 def _memo(fn: Any, keep: int = 16) -> Any:

@@ -27,7 +27,6 @@ rotation error (up to the model's symmetries) and centre error against the true 
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -287,20 +286,12 @@ def B_kind(code: int) -> str:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("log", type=Path)
-    ap.add_argument("--fits-cache", type=Path, default=None, metavar="DIR")
-    ap.add_argument("--frames", default="", help="comma-separated frame indices (default: every one)")
+    ap = B.diag_arguments(__doc__.splitlines()[0])
     ap.add_argument("--min-share", type=float, default=0.6, help="the unmatched instances of at least this visible share")
     ap.add_argument("--no-control", action="store_true", help="skip the matched fully visible instances")
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    B.FITS_CACHE = args.fits_cache
-    want = {int(v) for v in args.frames.split(",") if v}
     out = []
-    for frame, job, ff, _cpu, _config in B.fitted_frames(args.log):
-        if want and frame.index not in want:
-            continue
+    for frame, job, ff in B.diag_frames(args):
         row = frame_rows(args.log, frame, job, ff, min_share=args.min_share, control=not args.no_control)
         out.append(row)
         print(json.dumps({"frame": row["frame"], "sigma": row["sigma"], "rows": len(row["rows"])}), flush=True)

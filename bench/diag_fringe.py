@@ -25,7 +25,6 @@ instance's true mesh (median, 90th percentile), for all matched fits and for tho
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
@@ -201,18 +200,10 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any) -> dict[str, Any]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("log", type=Path)
-    ap.add_argument("--fits-cache", type=Path, default=None, metavar="DIR")
-    ap.add_argument("--frames", default="", help="comma-separated frame indices (default: every one)")
-    ap.add_argument("--json", type=Path, default=None)
+    ap = B.diag_arguments(__doc__.splitlines()[0])
     args = ap.parse_args()
-    B.FITS_CACHE = args.fits_cache
-    want = {int(v) for v in args.frames.split(",") if v}
     rows = []
-    for frame, job, ff, _cpu, _config in B.fitted_frames(args.log):
-        if want and frame.index not in want:
-            continue
+    for frame, job, ff in B.diag_frames(args):
         rows.append(frame_split(args.log, frame, job, ff))
         print(json.dumps(rows[-1], indent=1), flush=True)
     if args.json is not None:

@@ -30,7 +30,6 @@ the instance covers alone are its own first hits, >= 100 of them valid and at le
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import sys
@@ -286,19 +285,11 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("log", type=Path)
-    ap.add_argument("--fits-cache", type=Path, default=None, metavar="DIR")
-    ap.add_argument("--frames", default="", help="comma-separated frame indices (default: every one)")
+    ap = B.diag_arguments(__doc__.splitlines()[0])
     ap.add_argument("--no-oracle", action="store_true", help="skip the oracle sliver fits")
-    ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
-    B.FITS_CACHE = args.fits_cache
-    want = {int(v) for v in args.frames.split(",") if v}
     out = []
-    for frame, job, ff, _cpu, _config in B.fitted_frames(args.log):
-        if want and frame.index not in want:
-            continue
+    for frame, job, ff in B.diag_frames(args):
         row = frame_split(args.log, frame, job, ff, oracle=not args.no_oracle)
         out.append(row)
         print(json.dumps({k: v for k, v in row.items() if k != "unfitted"}, indent=1, default=float), flush=True)

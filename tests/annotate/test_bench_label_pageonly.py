@@ -180,21 +180,24 @@ def test_missed_causes_gives_each_missed_truth_pixel_one_cause(bench):
     assert sum(got[k] for k in bench.MISSED) == got["missed"]
 
 
-def test_fits_cache_fits_once_and_reads_back_the_same(bench, monkeypatch, tmp_path):
-    """--fits-cache DIR: the first run fits every frame (and pickles frame, job, fits, CPU-s), the next ones read them
-    back without opening a session; the same name with other bytes is fitted anew."""
+def _fake_fitting(bench, monkeypatch, n_frames=2, summary=True):
+    """The session and fit_frame :func:`fitted_frames` calls, replaced by fakes that count: sessions opened, frames
+    fitted, frames the pipeline ran (a log of ``n_frames``; ``summary``: whether its reader knows how many)."""
     from types import SimpleNamespace
 
     import annotate.fits as af
 
-    calls = {"open": 0, "fit": 0}
+    calls = {"open": 0, "fit": 0, "ran": []}
 
     class Session:
         config = "cfg"
         prepared = None
+        reader = SimpleNamespace(n_frames=n_frames if summary else None)
 
-        def results(self):
-            for i in range(2):
+        def results(self, frames=(0, None)):
+            start, stop = frames
+            for i in range(start, n_frames if stop is None else min(stop, n_frames)):
+                calls["ran"].append(i)
                 yield SimpleNamespace(index=i), {"frame": i}
 
     def open_session(log):
@@ -208,23 +211,69 @@ def test_fits_cache_fits_once_and_reads_back_the_same(bench, monkeypatch, tmp_pa
     monkeypatch.setattr(bench, "pipeline_options", lambda: SimpleNamespace(open_session=open_session))
     monkeypatch.setattr(af, "fit_frame", fit_frame)
     monkeypatch.setattr(af.Job, "of", staticmethod(lambda r: r))
+    return calls
+
+
+def test_fits_cache_fits_once_and_reads_back_the_same(bench, monkeypatch, tmp_path):
+    """--fits-cache DIR: the first run fits every frame (and pickles frame, job, fits, CPU-s), the next ones read them
+    back without opening a session; the same name with other bytes is fitted anew."""
+    calls = _fake_fitting(bench, monkeypatch)
     monkeypatch.setattr(bench, "FITS_CACHE", tmp_path / "cache")
     log = tmp_path / "a.mcap"
     log.write_bytes(b"x" * 10)
     first = [(f.index, j, ff, c) for f, j, ff, _, c in bench.fitted_frames(log)]
-    assert calls == {"open": 1, "fit": 2} and [c for *_, c in first] == ["cfg", "cfg"]
+    assert (calls["open"], calls["fit"]) == (1, 2) and [c for *_, c in first] == ["cfg", "cfg"]
     again = list(bench.fitted_frames(log))
-    assert calls == {"open": 1, "fit": 2}  # read back: no session, no fit
+    assert (calls["open"], calls["fit"]) == (1, 2)  # read back: no session, no fit
     assert [(f.index, j, ff) for f, j, ff, _, _ in again] == [t[:3] for t in first]
     assert [c for *_, c in again] == [None, None] and [cpu for *_, cpu, _ in again] == [cpu for *_, cpu, _ in
                                                                                         bench.fitted_frames(log)]
     log.write_bytes(b"y" * 10)  # other bytes, the same size: fitted anew
     list(bench.fitted_frames(log))
-    assert calls == {"open": 2, "fit": 4}
+    assert (calls["open"], calls["fit"]) == (2, 4)
     monkeypatch.setattr(bench, "FITS_CACHE", None)  # no cache: fitted on every run
     list(bench.fitted_frames(log))
     list(bench.fitted_frames(log))
-    assert calls == {"open": 4, "fit": 8}
+    assert (calls["open"], calls["fit"]) == (4, 8)
+
+
+def test_fits_cache_fits_only_the_frames_asked_and_missing(bench, monkeypatch, tmp_path):
+    """``frames``: only those frames are run and fitted; a later run over more frames, or over every frame, fits only
+    the ones the cache lacks (it was all-or-nothing: a cache of some frames hid the others) and yields every frame in
+    log order; a log without a summary runs every frame once and fits only the missing ones."""
+    calls = _fake_fitting(bench, monkeypatch, n_frames=5)
+    monkeypatch.setattr(bench, "FITS_CACHE", tmp_path / "cache")
+    log = tmp_path / "a.mcap"
+    log.write_bytes(b"x" * 10)
+    got = [f.index for f, *_ in bench.fitted_frames(log, [3, 1])]
+    assert got == [1, 3] and calls["fit"] == 2 and calls["ran"] == [1, 3]
+    got = [(f.index, c) for f, _, _, _, c in bench.fitted_frames(log, [1, 2, 3, 4])]
+    assert got == [(1, None), (2, "cfg"), (3, None), (4, "cfg")]
+    assert calls["fit"] == 4 and calls["ran"] == [1, 3, 2, 4]
+    got = [f.index for f, *_ in bench.fitted_frames(log)]  # every frame: only frame 0 is missing
+    assert got == [0, 1, 2, 3, 4] and calls["fit"] == 5 and calls["ran"][4:] == [0] and calls["open"] == 3
+    assert [f.index for f, *_ in bench.fitted_frames(log)] == [0, 1, 2, 3, 4] and calls["open"] == 3  # no session
+    assert [f.index for f, *_ in bench.fitted_frames(log, [])] == [] and calls["open"] == 3
+
+    calls = _fake_fitting(bench, monkeypatch, n_frames=3, summary=False)
+    monkeypatch.setattr(bench, "FITS_CACHE", tmp_path / "cache2")
+    assert [f.index for f, *_ in bench.fitted_frames(log, [2])] == [2]
+    assert [f.index for f, *_ in bench.fitted_frames(log)] == [0, 1, 2]
+    assert calls["fit"] == 3 and calls["ran"] == [2, 0, 1, 2]
+
+
+def test_diag_frames_reads_the_frames_argument(bench, monkeypatch, tmp_path):
+    """The diagnostics' shared arguments: ``--frames`` fits only those frames; a bad list is one line."""
+    calls = _fake_fitting(bench, monkeypatch, n_frames=4)
+    monkeypatch.setattr(bench, "FITS_CACHE", None)  # restored after: diag_frames sets it from the arguments
+    log = tmp_path / "a.mcap"
+    log.write_bytes(b"x" * 10)
+    ap = bench.diag_arguments("d")
+    args = ap.parse_args([str(log), "--frames", "2,0", "--fits-cache", str(tmp_path / "c")])
+    assert [f.index for f, _, _ in bench.diag_frames(args)] == [0, 2] and calls["fit"] == 2
+    args = ap.parse_args([str(log), "--frames", "two"])
+    with pytest.raises(SystemExit, match="--frames: comma-separated frame indices, not 'two'"):
+        list(bench.diag_frames(args))
 
 
 @pytest.mark.parametrize("argv", [["--fits-cache", "D", "--logs", "a.mcap"],
