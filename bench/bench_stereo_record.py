@@ -55,7 +55,7 @@ def compare(a: Path, b: Path) -> list[str]:
     """What differs between two logs' messages and metadata (empty: every message the same)."""
     ma, da = messages(a)
     mb, db = messages(b)
-    diff = [f"only in {a.name}: {k}" for k in ma.keys() - mb.keys()] + [f"only in {b.name}: {k}" for k in mb.keys() - ma.keys()]
+    diff = [f"only in {a}: {k}" for k in ma.keys() - mb.keys()] + [f"only in {b}: {k}" for k in mb.keys() - ma.keys()]
     diff += [f"differs: {k}" for k in ma.keys() & mb.keys() if ma[k] != mb[k]]
     if da != db:
         diff.append(f"metadata differs: {sorted(k for k in da.keys() | db.keys() if da.get(k) != db.get(k))}")
@@ -75,22 +75,23 @@ def main(argv: list[str] | None = None) -> int:
         if not d.is_dir():
             raise SystemExit(f"error: {d}: no such folder")
     scenes = [str(a.data / s) for s in a.scenes.split(",") if s]
-    a.work.mkdir(parents=True, exist_ok=True)
+    for side in ("old", "new"):
+        (a.work / side).mkdir(parents=True, exist_ok=True)
     trees = {"old": a.against.resolve(), "new": ROOT}
     cpu: dict[str, list[float]] = {"old": [], "new": []}
     loads = []
     for i in range(a.repeats):
         order = ("old", "new") if i % 2 == 0 else ("new", "old")
         for side in order:
-            out = a.work / f"{side}.mcap"
+            out = a.work / side / "stereo.mcap"  # one name: the log's metadata holds it
             cpu[side].append(run_child(trees[side], ["record-stereo", *scenes, "-o", str(out), "--force", *a.flags.split()]))
         loads.append(os.getloadavg()[0])
         print(f"repeat {i}: old {cpu['old'][-1]:.2f} CPU-s, new {cpu['new'][-1]:.2f} CPU-s, load {loads[-1]:.1f}",
               flush=True)
     mo, mn = statistics.median(cpu["old"]), statistics.median(cpu["new"])
     print(f"median CPU-s: old {mo:.2f}, new {mn:.2f} ({mn / mo:.3f} ×); load {min(loads):.1f}–{max(loads):.1f}")
-    diff = compare(a.work / "old.mcap", a.work / "new.mcap")
-    n = len(messages(a.work / "new.mcap")[0])
+    diff = compare(a.work / "old" / "stereo.mcap", a.work / "new" / "stereo.mcap")
+    n = len(messages(a.work / "new" / "stereo.mcap")[0])
     print(f"messages: {n}; " + ("every message of every topic and the metadata the same" if not diff
                                 else f"{len(diff)} differences: " + "; ".join(diff[:10])))
     return 1 if diff else 0
