@@ -311,19 +311,24 @@ def left_right_disagree_reference(disp_left: np.ndarray, disp_right: np.ndarray,
 
 
 def left_right_rejected(left: np.ndarray, right: np.ndarray, params: MatcherParams, max_diff: int, *,
-                        matched: np.ndarray | None = None, disparity: np.ndarray | None = None) -> np.ndarray:
+                        matched: np.ndarray | None = None, disparity: np.ndarray | None = None,
+                        disparity_right: np.ndarray | None = None) -> np.ndarray:
     """The pixels the left-right check invalidates: matched by ``params`` and not confirmed by the right view's
     own match (:func:`match_right` with the same ``params``; :func:`left_right_disagree` within ``max_diff`` px).
 
     ``matched``: the pixels to keep the result to (e.g. the cloud's valid ones). ``disparity``: ``match(left,
-    right, params)`` when already computed (else matched here). Returns an (H, W) bool ndarray."""
+    right, params)`` when already computed (else matched here). ``disparity_right``: ``match_right(left, right,
+    params)`` when already computed (else matched here; one match serves every tolerance). Returns an (H, W) bool
+    ndarray."""
     dl = match(left, right, params) if disparity is None else disparity
-    out = left_right_disagree(dl, match_right(left, right, params), max_diff)
+    dr = match_right(left, right, params) if disparity_right is None else disparity_right
+    out = left_right_disagree(dl, dr, max_diff)
     return out if matched is None else out & np.asarray(matched, dtype=bool)
 
 
 def rejected_pixels(left: np.ndarray, right: np.ndarray, params: MatcherParams, post: PostFilter, *,
-                    matched: np.ndarray | None = None, disparity: np.ndarray | None = None) -> np.ndarray:
+                    matched: np.ndarray | None = None, disparity: np.ndarray | None = None,
+                    disparity_right: np.ndarray | None = None) -> np.ndarray:
     """The pixels one of the matcher's post-filters invalidates: matched by ``params``, unmatched by
     ``params`` with ``post``'s settings (the same run, that filter on at that strength); for the left-right
     check (:class:`~zcut.params.StereoLrParams`) the pixels :func:`left_right_rejected` gives.
@@ -340,6 +345,9 @@ def rejected_pixels(left: np.ndarray, right: np.ndarray, params: MatcherParams, 
         ``isfinite(match(left, right, params))``, when already computed.
     disparity : (H, W) float ndarray, optional
         ``match(left, right, params)``, when already computed (the left-right check reads its values).
+    disparity_right : (H, W) float ndarray, optional
+        ``match_right(left, right, params)``, when already computed (the left-right check only: one match of the
+        right view serves every tolerance).
 
     Returns
     -------
@@ -355,7 +363,8 @@ def rejected_pixels(left: np.ndarray, right: np.ndarray, params: MatcherParams, 
     if isinstance(post, StereoTextureParams) and params.matcher != "bm":
         raise ParameterError(f"the texture threshold is a setting of StereoBM (matcher bm), not of {params.matcher}")
     if isinstance(post, StereoLrParams):
-        return left_right_rejected(left, right, params, post.disp12_max_diff, matched=matched, disparity=disparity)
+        return left_right_rejected(left, right, params, post.disp12_max_diff, matched=matched, disparity=disparity,
+                                   disparity_right=disparity_right)
     if matched is None:
         matched = np.isfinite(match(left, right, params))
     on = dataclasses.replace(params, **dataclasses.asdict(post))

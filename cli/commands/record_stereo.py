@@ -166,11 +166,13 @@ def run(args: argparse.Namespace) -> int:
     from replay.stereo_scene import SceneOverrides, load_scene
     from zcut.cloud import Intrinsics
     from zcut.errors import ParameterError
+    from zcut.params import StereoLrParams
     from zcut.stereo import (
         MatcherParams,
         StereoCalibration,
         disparity_to_depth_mm,
         match,
+        match_right,
         rejected_pixels,
         stereo_truth,
         xyz_from_depth_mm,
@@ -218,9 +220,13 @@ def run(args: argparse.Namespace) -> int:
                 disp = match(scene.left, scene.right, p)
                 cal = scene.calib
                 xyz = xyz_from_depth_mm(disparity_to_depth_mm(disp, cal), cal)
-                # the pixels of the cloud each post-filter would invalidate (the same run, that filter on)
+                # the pixels of the cloud each post-filter would invalidate (the same run, that filter on); the
+                # left-right check's right view matched once for all its tolerances
                 valid = np.isfinite(xyz[..., 2])
-                rejected = [rejected_pixels(scene.left, scene.right, p, post, matched=valid, disparity=disp) for _, post in posts]
+                disp_r = match_right(scene.left, scene.right, p) if any(isinstance(post, StereoLrParams)
+                                                                        for _, post in posts) else None
+                rejected = [rejected_pixels(scene.left, scene.right, p, post, matched=valid, disparity=disp,
+                                            disparity_right=disp_r) for _, post in posts]
                 h, wd = xyz.shape[:2]
                 stamp = i * 1_000_000_000
                 kw = {"stamp_ns": stamp, "frame_id": args.frame_id}

@@ -479,6 +479,9 @@ class LogFacts:
     intrinsics_fitted : bool
         ``intrinsics`` were fitted to the cloud: the log has no camera model (no CameraInfo), which
         the methods that need one (``cluster``) refuse.
+    recorded_masks : tuple of (str, str)
+        ``(method, topic)`` of every mask a stereo log's ``zcut.stereo`` metadata lists as recorded (the
+        matcher's post-filters, ``zcut record-stereo``); empty for any other log.
     """
 
     part: str | None
@@ -487,6 +490,7 @@ class LogFacts:
     image_shape: tuple[int, int]
     sources: dict[str, str] = field(default_factory=dict)
     intrinsics_fitted: bool = False
+    recorded_masks: tuple[tuple[str, str], ...] = ()
 
 
 def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float | None]:
@@ -507,6 +511,23 @@ def synth_info(metadata: dict[str, dict[str, str]]) -> tuple[str | None, float |
                 dist = d
                 break
     return kind, dist
+
+
+def recorded_masks(metadata: dict[str, dict[str, str]]) -> tuple[tuple[str, str], ...]:
+    """``(method, topic)`` of each post-filter mask a ``zcut record-stereo`` log records (its ``zcut.stereo``
+    metadata's ``rejected``), in the recorded order; empty when there is none. Entries that are not a
+    ``{"method": str, "topic": str}`` are left out (the method then does not join a default)."""
+    text = metadata.get(layout.STEREO_METADATA, {}).get("rejected")
+    if not text:
+        return ()
+    try:
+        items = json.loads(text)
+    except ValueError:
+        return ()
+    if not isinstance(items, list):
+        return ()
+    return tuple((e["method"], e["topic"]) for e in items
+                 if isinstance(e, dict) and isinstance(e.get("method"), str) and isinstance(e.get("topic"), str))
 
 
 def intrinsics_from_cloud(xyz: np.ndarray) -> Intrinsics | None:
@@ -569,7 +590,7 @@ def log_facts(metadata: dict[str, dict[str, str]], first_frame: Frame, *,
         if K is not None:
             sources["intrinsics"] = f"fitted to the first frame's organized cloud: fx {K.fx:.1f}, fy {K.fy:.1f} px"
     return LogFacts(part, distance if (distance is None or distance > 0) else None, K, first_frame.shape, sources,
-                    intrinsics_fitted=fitted)
+                    intrinsics_fitted=fitted, recorded_masks=recorded_masks(metadata))
 
 
 def _merge(*layers: dict[str, Any]) -> tuple[dict[str, Any], str | None]:
@@ -682,13 +703,31 @@ def resolve(facts: LogFacts, *, file_layer: dict[str, Any] | None = None,
     except ParameterError as e:
         raise _config_error(e, "resolved config") from None
     config = _config(zc, stages, part=part, parameters=mode, methods=tuple(d.get("methods", DEFAULT_METHODS)))
+    sensor = () if "methods" in d else sensor_methods(config, facts)
+    if sensor:
+        config = dataclasses.replace(config, methods=(*config.methods, *sensor))
+        notes.append(f"methods: {', '.join(config.methods)} ({', '.join(sensor)}: the stereo matcher's post-filter "
+                     "masks the log records, at the config's strengths; methods = [...] or --methods to choose)")
     check_camera_model(config, facts)
-    if config.methods != DEFAULT_METHODS:
+    if config.methods != DEFAULT_METHODS and not sensor:
         notes.append(f"methods: {', '.join(config.methods)}")
     notes.append(f"z-cut: step {zc.step:g} mm, max depth {zc.max_depth:g} mm, max area {zc.max_area:.2f} px; "
                  f"SOR: k {config.sor.k}, std_ratio {config.sor.std_ratio:g} on the "
                  f"{'top of the pile (within d_max of the highest point)' if config.sor.region == 'top' else 'whole zone'}")
     return Resolved(config, tuple(notes))
+
+
+def sensor_methods(config: PipelineConfig, facts: LogFacts) -> tuple[str, ...]:
+    """The post-filter methods a log's default methods add (docs/labelling_real.md, h/stereo4): each of
+    ``zcut.stereo.POST_FILTERS``, in its order, whose mask the log records (:attr:`LogFacts.recorded_masks`)
+    at the strength ``config`` selects for it (its section); none for a log without recorded masks."""
+    if not facts.recorded_masks:
+        return ()
+    from zcut.stereo import POST_FILTERS
+
+    held = set(facts.recorded_masks)
+    return tuple(name for name in POST_FILTERS
+                 if (name, layout.stereo_rejected_topic(dataclasses.asdict(config.bank[name]))) in held)
 
 
 def check_camera_model(config: PipelineConfig, facts: LogFacts) -> None:

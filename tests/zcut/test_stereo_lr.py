@@ -78,3 +78,29 @@ def test_real_pair_flags_what_opencv_does_not():
     assert got.sum() > 10 * max(int(opencv.sum()), 1)
     # a wider tolerance flags a subset
     assert not (rejected_pixels(left, right, p, StereoLrParams(disp12_max_diff=4)) & ~got).any()
+
+
+def test_one_right_match_serves_every_tolerance(monkeypatch):
+    """``disparity_right=``: the right view's match given once gives every tolerance's mask, equal to the one matched
+    inside; no match of the right view is run then (h/stereo4)."""
+    skd = pytest.importorskip("skimage.data")
+    import zcut.stereo as stereo
+
+    left, right, _ = skd.stereo_motorcycle()
+    left, right = left[::4, ::4].copy(), right[::4, ::4].copy()
+    p = MatcherParams(num_disparities=32)
+    dl, dr = match(left, right, p), match_right(left, right, p)
+    matched = np.isfinite(dl)
+    want = {t: rejected_pixels(left, right, p, StereoLrParams(disp12_max_diff=t), matched=matched) for t in (0, 1, 2, 4)}
+    assert want[0].sum() > want[4].sum() > 0
+
+    def no_right_match(*_a, **_k):
+        raise AssertionError("the right view matched again")
+
+    monkeypatch.setattr(stereo, "match_right", no_right_match)
+    for t, w in want.items():
+        got = rejected_pixels(left, right, p, StereoLrParams(disp12_max_diff=t), matched=matched, disparity=dl,
+                              disparity_right=dr)
+        assert np.array_equal(got, w), t
+        assert np.array_equal(stereo.left_right_rejected(left, right, p, t, disparity=dl, disparity_right=dr),
+                              left_right_disagree_reference(dl, dr, t))
