@@ -1,8 +1,9 @@
 """Benchmark: full replay (bin mask, ICP, removal, z-cut, SOR, metrics) on 1920 x 1200 synthetic frames.
 
 Run: ``.venv/bin/python bench/bench_replay.py [--frames N] [--kind KIND] [--dir DIR] [--stages] [--against OLD]``
-(or ``--stages-only --log LOG.mcap [--against OLD]`` for the cost per stage of an existing log, and
-``--bin-stages --log LOG.mcap --against OLD [--repeats N]`` for its bin stages alone, the two trees alternating)
+(or ``--stages-only --log LOG.mcap [--against OLD] [--repeats N]`` for the cost per stage of an existing log, the
+two trees alternating N times, and ``--bin-stages --log LOG.mcap --against OLD [--repeats N]`` for its bin stages
+alone)
 
 Synthesises (once, cached in ``--dir``) a log of N filled-bin frames and five empty-bin scans at
 the sensor's full size, builds the bin model, then replays the log three ways, each after a warm-up
@@ -23,7 +24,10 @@ frame (numba compilation, model caches):
   medians over the frames after a warm-up one. ``--against DIR`` runs the same measurement on the
   source tree DIR (e.g. the previous release: ``git archive 1f542c6 | tar -x -C DIR``) in a
   subprocess of the same run and prints the ratio old / new per stage. ``--stages-only`` skips
-  the frames/s and .rrd measurements. The machine is shared: CPU time, not wall time, is compared.
+  the frames/s and .rrd measurements; with ``--log LOG --against DIR`` the two trees alternate ``--repeats``
+  times (one subprocess a run, the order swapped every other repetition): medians of the runs, every run's
+  total and the paired runs' ratios previous / this (a lever's bar reads the median and the least of them).
+  The machine is shared: CPU time, not wall time, is compared.
 - "Stage table" (``--table``, issue 32 item 8): the cost per stage above, CPU ms and wall ms (each
   stage's timer read with ``time.process_time`` on one pass over the frames, with
   ``time.perf_counter`` on a second), for every size of ``--sizes`` (default 640x480, 1280x800,
@@ -307,40 +311,62 @@ def stage_table(logs: dict[tuple[int, int], Path], cores: list[int], against: Pa
 BIN_STAGES = ("bin_mask", "registration", "removal")
 
 
-def bin_stage_table(log: Path, ply: Path | None, against: Path | None, repeats: int) -> None:
-    """Print the bin stages' CPU ms per frame (medians over the frames after a warm-up one) of this tree and
-    ``against``'s, alternating ``repeats`` times (one subprocess each), the medians of the runs, every run's
-    figures and the ratio previous / this, and the CPU ms per Mpx."""
+def alternating_stage_table(log: Path, ply: Path | None, against: Path | None, repeats: int, *,
+                            bin_only: bool = False) -> None:
+    """Print the stages' CPU ms per frame (medians over the frames after a warm-up one) of this tree and
+    ``against``'s, alternating ``repeats`` times (one subprocess each, the order swapped every other repetition),
+    the medians of the runs, the ratio previous / this, the CPU ms per Mpx, and every run's total with the paired
+    runs' ratios (run i of each tree). ``bin_only``: the bin stages alone (bin mask, registration, removal and its
+    check; ``stages.bin_zone``), their sum the total."""
     this_tree = Path(__file__).resolve().parents[1]
     trees = {"this tree": this_tree} | ({"previous": against} if against is not None else {})
     runs: dict[str, list[dict[str, float]]] = {k: [] for k in trees}
     loads = []
-    for _ in range(max(repeats, 1)):
-        for name, tree in trees.items():
+    for i in range(max(repeats, 1)):
+        for name, tree in (trees.items() if i % 2 == 0 else reversed(trees.items())):
             loads.append(os.getloadavg()[0])
-            runs[name].append(stage_costs_of_tree(tree, log, ply, bin_only=True))
+            runs[name].append(stage_costs_of_tree(tree, log, ply, bin_only=bin_only))
+    keys = (*BIN_STAGES, "bin stages") if bin_only else STAGES
+    for rs in runs.values():
+        for r in rs:
+            r["bin stages"] = sum(r[k] for k in BIN_STAGES)
     first = runs["this tree"][0]
     mpx = first["width"] * first["height"] / 1e6
-    print(f"\nbin stages of {log.name} ({int(first['width'])}x{int(first['height'])}, {int(first['frames'])} frames "
-          f"after a warm-up one), CPU ms per frame, medians of {repeats} alternating runs; load average "
-          f"{min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores")
-    med = {name: {k: statistics.median(r[k] for r in rs) for k in BIN_STAGES} for name, rs in runs.items()}
-    for name in trees:
-        med[name]["bin stages"] = sum(med[name][k] for k in BIN_STAGES)
+    what = "bin stages" if bin_only else "stages (read, then one after the other)"
+    print(f"\n{what} of {log.name} ({int(first['width'])}x{int(first['height'])}, {int(first['frames'])} frames "
+          f"after a warm-up one), CPU ms per frame, medians of {len(runs['this tree'])} alternating runs; load "
+          f"average {min(loads):.1f}-{max(loads):.1f} on {os.cpu_count()} cores")
+    med = {name: {k: statistics.median(r[k] for r in rs) for k in keys} for name, rs in runs.items()}
     head = f"  {'stage':13s} {'this tree':>10s} {'ms/Mpx':>8s}"
     if against is not None:
         head += f" {'previous':>10s} {'previous/this':>14s}"
     print(head)
-    for k in (*BIN_STAGES, "bin stages"):
+    for k in keys:
         c = med["this tree"][k]
         line = f"  {k:13s} {c:10.1f} {c / mpx:8.1f}"
         if against is not None:
             o = med["previous"][k]
             line += f" {o:10.1f} {o / c if c else float('nan'):14.2f}"
         print(line)
+    total = keys[-1] if bin_only else "total"
     for name, rs in runs.items():
-        print(f"  {name} per run (bin mask/registration/removal): "
-              + ", ".join("/".join(f"{r[k]:.1f}" for k in BIN_STAGES) for r in rs))
+        print(f"  {name} per run ({'/'.join(BIN_STAGES) if bin_only else 'total'}): "
+              + ", ".join("/".join(f"{r[k]:.1f}" for k in BIN_STAGES) if bin_only else f"{r[total]:.1f}"
+                          for r in rs))
+    if against is not None:
+        ratios, median, least = paired_ratios(runs["previous"], runs["this tree"], total)
+        print(f"  previous / this, {total}, run by run: " + ", ".join(f"{v:.3f}" for v in ratios)
+              + f" (median {median:.3f}, least {least:.3f})")
+
+
+def paired_ratios(previous: list[dict[str, float]], this: list[dict[str, float]], key: str
+                  ) -> tuple[list[float], float, float]:
+    """The ratios previous / this of ``key`` run by run (run i of each tree, measured one after the other), their
+    median and the least: what a lever's bar reads ("median >= 1.05, every run > 1.00")."""
+    if len(previous) != len(this) or not this:
+        raise ValueError(f"paired_ratios: as many runs of each tree, at least one (got {len(previous)} and {len(this)})")
+    ratios = [o[key] / t[key] for o, t in zip(previous, this, strict=True)]
+    return ratios, statistics.median(ratios), min(ratios)
 
 
 #: the outputs ``--throughput --outputs`` may replay with: none, the Rerun recording (``--rrd``), the results
@@ -1263,9 +1289,9 @@ def main() -> None:
         log, ply = args.log, None
     else:
         log, ply = prepare(d, args.kind, args.frames)
-    if args.bin_stages:
+    if args.bin_stages or (args.stages_only and args.against is not None):
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
-        bin_stage_table(log, ply, args.against, args.repeats)
+        alternating_stage_table(log, ply, args.against, args.repeats, bin_only=args.bin_stages)
         return
     if args.stages or args.stages_only or args.against:
         os.environ.setdefault("NUMBA_THREADING_LAYER_PRIORITY", "workqueue omp tbb")
