@@ -94,6 +94,13 @@ WARM_IMPORTS = (
     "replay.outputs", "replay.pipeline.config", "replay.pipeline.stages", "replay.pipeline.session",
     "replay.pipeline.bin_model", "annotate.store", "annotate.label_files", "annotate.accuracy", "replay.synth",
     "replay.synth.log",
+    # what the commands' ``run`` imports in its turn (every case but the .rrd's, which import Rerun, paid these
+    # imports, ~0.1-0.3 CPU s a case with no bytecode written)
+    "cli.commands.common", "cli.commands.replay", "cli.commands.accuracy", "cli.commands.topics",
+    "cli.commands.record", "cli.commands.bin_model", "cli.commands.labels", "cli.commands.synth", "scipy.optimize",
+    "annotate.assistant", "annotate.budget", "annotate.groups", "annotate.judge", "annotate.truth",
+    "replay.logs.part_model", "replay.pipeline.verdicts", "zcut.sor", "zcut.icp_fast", "zcut.columns",
+    "zcut.components", "zcut.edge_surface", "zcut.grid_input", "zcut.suspects",
 )
 
 
@@ -547,6 +554,7 @@ def _serve(jobs: int) -> None:  # pragma: no cover - runs in the server process
     t0 = time.perf_counter()
     for name in WARM_IMPORTS:
         importlib.import_module(name)
+    _numba_context()
     warm = time.perf_counter() - t0
     _assert_no_numba_threads()
     out = sys.stdout
@@ -589,6 +597,16 @@ def _serve(jobs: int) -> None:  # pragma: no cover - runs in the server process
                 out.flush()
             else:
                 r.watch()
+
+
+def _numba_context() -> None:
+    """numba's CPU target and typing contexts filled (their registries, the NRT), as the first kernel a process
+    calls or loads from the cache fills them (~0.4 CPU s): once here, not in every case. Neither loads a kernel
+    nor starts a thread (a cached parallel kernel would start the threading layer when loaded: none is)."""
+    from numba.core.registry import cpu_target
+
+    cpu_target.target_context.refresh()
+    cpu_target.typing_context.refresh()
 
 
 def _assert_no_numba_threads() -> None:
