@@ -690,16 +690,23 @@ def _child(req: dict) -> None:  # pragma: no cover - runs in a forked child
 def run_cases(cases: Iterable[Case], work: Path, *, jobs: int = 2, mode: str = "fork",
               timeout_s: float = DEFAULT_TIMEOUT_S, mem_bytes: int = DEFAULT_MEM_BYTES,
               as_bytes: int = DEFAULT_AS_BYTES, fsize_bytes: int = DEFAULT_FSIZE_BYTES, keep: Path | None = None,
-              on_outcome: Callable[[Outcome], None] | None = None) -> Iterator[Outcome]:
+              on_outcome: Callable[[Outcome], None] | None = None,
+              runner: ForkServer | SubprocessPool | None = None) -> Iterator[Outcome]:
     """Run ``cases`` (``jobs`` at a time) in folders under ``work``; yield their outcomes in
     completion order.
+
+    ``runner``: a runner the caller started (and closes), e.g. one warm server for several calls
+    (started with at least ``jobs`` jobs); ``mode`` is then not used. None: one of ``mode`` is started
+    for this call and closed at its end.
 
     Each case runs in ``work/<id>/`` (removed afterwards unless it is not clean and ``keep`` is
     given: then it is moved to ``keep/<id>/`` with ``cmd.sh``, ``case.json``, ``stdout`` and
     ``stderr``, a reproducer).
     """
     work.mkdir(parents=True, exist_ok=True)
-    runner = ForkServer(jobs=jobs) if mode == "fork" else SubprocessPool(jobs=jobs)
+    own = runner is None
+    if runner is None:
+        runner = ForkServer(jobs=jobs) if mode == "fork" else SubprocessPool(jobs=jobs)
     pending: dict[str, _Job] = {}
     it = iter(cases)
     exhausted = False
@@ -729,7 +736,8 @@ def run_cases(cases: Iterable[Case], work: Path, *, jobs: int = 2, mode: str = "
                 on_outcome(outcome)
             yield outcome
     finally:
-        runner.close()
+        if own:
+            runner.close()
 
 
 def _read(path: Path) -> str:
