@@ -284,6 +284,32 @@ def fits_once():
         yield memo
 
 
+@pytest.fixture(scope="module", autouse=True)
+def prepared_once():
+    """``replay.pipeline.bin_model.prepared_bin_model`` (the bin model's search structures, which every command's
+    session reads back from the cache folder: ~0.07 CPU s, four sessions a field) made or read once per distinct
+    call in this module, keyed as the cache folder keys it: the model's points, normals and spacing, and the
+    registration's and removal's parameters (their repr). A command that passed another registration or removal
+    value gets its own, as before; the read-back equals the preparation bit for bit
+    (tests/replay/pipeline/test_bin_model_cache.py), and the pipeline only reads a prepared model (a session's
+    frames in flight share one)."""
+    from replay.pipeline import bin_model as bm
+
+    real = bm.prepared_bin_model
+    memo: dict = {}
+
+    def prepared_bin_model(model, *, registration, removal):
+        key = (_digest(model.points), None if model.normals is None else _digest(model.normals),
+               repr(float(model.spacing_m)), repr(registration), repr(removal))
+        if key not in memo:
+            memo[key] = real(model, registration=registration, removal=removal)
+        return memo[key]
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(bm, "prepared_bin_model", prepared_bin_model)
+        yield memo
+
+
 @pytest.fixture(scope="module")
 def setup(tmp_path_factory):
     d = tmp_path_factory.mktemp("every_parameter")
