@@ -31,8 +31,9 @@ Two ways to run a case (``mode``):
 
 ``fork``
     A *warm server*: a fresh interpreter (started once with ``subprocess``) imports the command
-    line and the libraries its commands import lazily — never running a numba kernel, so that no
-    numba worker thread exists in it — then forks one child per case. The child sets its limits
+    line and the libraries its commands import lazily, and fills numba's target and typing contexts
+    — never running or loading a numba kernel, so that no numba worker thread exists in it — then
+    forks one child per case (one server may serve several :func:`run_cases` calls: ``runner``). The child sets its limits
     (``RLIMIT_AS`` = the server's address space + the budget, ``RLIMIT_FSIZE``, no core), points
     fds 0/1/2 at /dev/null and two files, and runs ``cli.main.main(argv)`` as the console script
     would (an uncaught exception prints its traceback and exits 1; non-daemon threads are joined and
