@@ -31,8 +31,9 @@ Two ways to run a case (``mode``):
 
 ``fork``
     A *warm server*: a fresh interpreter (started once with ``subprocess``) imports the command
-    line and the libraries its commands import lazily — never running a numba kernel, so that no
-    numba worker thread exists in it — then forks one child per case. The child sets its limits
+    line and the libraries its commands import lazily, and fills numba's target and typing contexts
+    — never running or loading a numba kernel, so that no numba worker thread exists in it — then
+    forks one child per case (one server may serve several :func:`run_cases` calls: ``runner``). The child sets its limits
     (``RLIMIT_AS`` = the server's address space + the budget, ``RLIMIT_FSIZE``, no core), points
     fds 0/1/2 at /dev/null and two files, and runs ``cli.main.main(argv)`` as the console script
     would (an uncaught exception prints its traceback and exits 1; non-daemon threads are joined and
@@ -94,6 +95,13 @@ WARM_IMPORTS = (
     "replay.outputs", "replay.pipeline.config", "replay.pipeline.stages", "replay.pipeline.session",
     "replay.pipeline.bin_model", "annotate.store", "annotate.label_files", "annotate.accuracy", "replay.synth",
     "replay.synth.log",
+    # what the commands' ``run`` imports in its turn (every case but the .rrd's, which import Rerun, paid these
+    # imports, ~0.1-0.3 CPU s a case with no bytecode written)
+    "cli.commands.common", "cli.commands.replay", "cli.commands.accuracy", "cli.commands.topics",
+    "cli.commands.record", "cli.commands.bin_model", "cli.commands.labels", "cli.commands.synth", "scipy.optimize",
+    "annotate.assistant", "annotate.budget", "annotate.groups", "annotate.judge", "annotate.truth",
+    "replay.logs.part_model", "replay.pipeline.verdicts", "zcut.sor", "zcut.icp_fast", "zcut.columns",
+    "zcut.components", "zcut.edge_surface", "zcut.grid_input", "zcut.suspects",
 )
 
 
@@ -547,6 +555,7 @@ def _serve(jobs: int) -> None:  # pragma: no cover - runs in the server process
     t0 = time.perf_counter()
     for name in WARM_IMPORTS:
         importlib.import_module(name)
+    _numba_context()
     warm = time.perf_counter() - t0
     _assert_no_numba_threads()
     out = sys.stdout
@@ -589,6 +598,16 @@ def _serve(jobs: int) -> None:  # pragma: no cover - runs in the server process
                 out.flush()
             else:
                 r.watch()
+
+
+def _numba_context() -> None:
+    """numba's CPU target and typing contexts filled (their registries, the NRT), as the first kernel a process
+    calls or loads from the cache fills them (~0.4 CPU s): once here, not in every case. Neither loads a kernel
+    nor starts a thread (a cached parallel kernel would start the threading layer when loaded: none is)."""
+    from numba.core.registry import cpu_target
+
+    cpu_target.target_context.refresh()
+    cpu_target.typing_context.refresh()
 
 
 def _assert_no_numba_threads() -> None:
@@ -672,16 +691,23 @@ def _child(req: dict) -> None:  # pragma: no cover - runs in a forked child
 def run_cases(cases: Iterable[Case], work: Path, *, jobs: int = 2, mode: str = "fork",
               timeout_s: float = DEFAULT_TIMEOUT_S, mem_bytes: int = DEFAULT_MEM_BYTES,
               as_bytes: int = DEFAULT_AS_BYTES, fsize_bytes: int = DEFAULT_FSIZE_BYTES, keep: Path | None = None,
-              on_outcome: Callable[[Outcome], None] | None = None) -> Iterator[Outcome]:
+              on_outcome: Callable[[Outcome], None] | None = None,
+              runner: ForkServer | SubprocessPool | None = None) -> Iterator[Outcome]:
     """Run ``cases`` (``jobs`` at a time) in folders under ``work``; yield their outcomes in
     completion order.
+
+    ``runner``: a runner the caller started (and closes), e.g. one warm server for several calls
+    (started with at least ``jobs`` jobs); ``mode`` is then not used. None: one of ``mode`` is started
+    for this call and closed at its end.
 
     Each case runs in ``work/<id>/`` (removed afterwards unless it is not clean and ``keep`` is
     given: then it is moved to ``keep/<id>/`` with ``cmd.sh``, ``case.json``, ``stdout`` and
     ``stderr``, a reproducer).
     """
     work.mkdir(parents=True, exist_ok=True)
-    runner = ForkServer(jobs=jobs) if mode == "fork" else SubprocessPool(jobs=jobs)
+    own = runner is None
+    if runner is None:
+        runner = ForkServer(jobs=jobs) if mode == "fork" else SubprocessPool(jobs=jobs)
     pending: dict[str, _Job] = {}
     it = iter(cases)
     exhausted = False
@@ -711,7 +737,8 @@ def run_cases(cases: Iterable[Case], work: Path, *, jobs: int = 2, mode: str = "
                 on_outcome(outcome)
             yield outcome
     finally:
-        runner.close()
+        if own:
+            runner.close()
 
 
 def _read(path: Path) -> str:

@@ -42,12 +42,23 @@ def corpus(work):
 
 
 @pytest.fixture(scope="module")
-def outcomes(work, corpus) -> dict[str, fuzzlib.Outcome]:
+def server():
+    """One warm fork server (two jobs) for every fork run of the module: the corpus's cases, the caps' and the
+    real command's runs (each started its own, ~2.6 CPU s of imports; a server is left as it was by the
+    children it forks)."""
+    s = fuzzlib.ForkServer(jobs=2)
+    yield s
+    s.close()
+
+
+@pytest.fixture(scope="module")
+def outcomes(work, corpus, server) -> dict[str, fuzzlib.Outcome]:
     keep = Path(os.environ.get("ZCUT_FUZZ_KEEP", work / "findings"))
     cases = [*fuzzgen.make_cases(corpus, COUNTS, SEED),
              *(fuzzgen.bomb_case(corpus, i, kind, f"mcap_bomb-fast-{i:02d}{kind[0]}", timeout_s=None)
                for i in fuzzgen.CHEAP_BOMBS for kind in BOMB_KINDS)]
-    return {o.case.id: o for o in fuzzlib.run_cases(cases, work / "cases", jobs=2, keep=keep, timeout_s=TIMEOUT_S)}
+    return {o.case.id: o for o in fuzzlib.run_cases(cases, work / "cases", jobs=2, keep=keep, timeout_s=TIMEOUT_S,
+                                                    runner=server)}
 
 
 def _report(o: fuzzlib.Outcome, keep: Path) -> str:
@@ -135,7 +146,7 @@ def test_snapshot_sees_changes_links_and_special_files(tmp_path):
     assert fuzzlib.leftovers(before, after) == ["new.partial"]
 
 
-def test_runner_caps_memory_and_time(tmp_path):
+def test_runner_caps_memory_and_time(tmp_path, server):
     """The caps are real: a legitimately huge synthesis is killed above 1 GiB resident (memory), the
     address-space backstop turns an allocation into a MemoryError (memory), a long run is killed at a
     1 s cap (hang, with its process group)."""
@@ -146,21 +157,22 @@ def test_runner_caps_memory_and_time(tmp_path):
                      timeout_s=1.0),
     ]
     got = {o.case.id: o for o in fuzzlib.run_cases(cases, tmp_path / "w", jobs=2, mem_bytes=1 << 30,
-                                                     keep=tmp_path / "keep")}
+                                                     keep=tmp_path / "keep", runner=server)}
     assert got["rss"].klass == "memory" and "resident" in got["rss"].detail, got["rss"].detail
     assert got["time"].klass == "hang" and ".py:" in got["time"].detail  # where it was (a faulthandler dump)
     assert (tmp_path / "keep" / "rss.cmd.sh").read_text().endswith("zcut synth -o o.mcap --size 4000x4000\n")
     (o,) = fuzzlib.run_cases([fuzzlib.Case("as", "meta", "huge synth", big, timeout_s=120)], tmp_path / "w2", jobs=1,
-                             as_bytes=256 << 20)
+                             as_bytes=256 << 20, runner=server)
     assert o.klass == "memory" and "resident" not in o.detail, o.detail
 
 
 @pytest.mark.parametrize("mode", ["fork", "subprocess"])
-def test_both_runners_run_the_real_command(tmp_path, corpus, mode):
+def test_both_runners_run_the_real_command(tmp_path, corpus, mode, server):
     cases = [fuzzlib.Case("usage", "meta", "no such command", ["nope"]),
              fuzzlib.Case("topics", "meta", "a good log", ["topics", "--check", "w3.mcap"],
                           files={"w3.mcap": corpus["w3.mcap"]}, expect_frames=3, count="check")]
-    got = {o.case.id: o for o in fuzzlib.run_cases(cases, tmp_path, jobs=2, mode=mode)}
+    got = {o.case.id: o for o in fuzzlib.run_cases(cases, tmp_path, jobs=2, mode=mode,
+                                                   runner=server if mode == "fork" else None)}
     assert got["usage"].klass == "clean" and got["usage"].rc == 1 and got["usage"].detail.startswith("error: ")
     assert got["topics"].klass == "clean" and got["topics"].rc == 0
     assert "check: 3 frames decoded (3 with colour)" in got["topics"].stdout

@@ -14,10 +14,13 @@ honoured and `replay` ignored) fails here.
 from __future__ import annotations
 
 import contextlib
+import copy
 import dataclasses
+import hashlib
 import io
 import json
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import main, synth_log, synth_with_bin_model
@@ -247,6 +250,64 @@ def _signatures(log, model, config, out_dir) -> dict:
         want = bank_counts[(frame, method)] if method in (*BANK, *OWN) else counts[frame][0 if method == "zcut" else 1]
         assert n_pred == want, f"sweep disagrees with replay ({method})"
     return sig
+
+
+def _digest(a) -> str:
+    a = np.ascontiguousarray(a)
+    return hashlib.sha256(f"{a.dtype}{a.shape}".encode() + a.tobytes()).hexdigest()
+
+
+@pytest.fixture(scope="module", autouse=True)
+def fits_once():
+    """``zcut.fits.fit_prepared`` (the part fits, most of an ``explained`` command's time) computed once per
+    distinct call in this module: the five commands of a field each fit the same frame with the same arguments.
+    The key is every argument: the cloud's and the zone's bytes, the prepared model (the same object while its
+    file is unchanged: ``replay.pipeline.explained`` reads it once per file version; kept alive here), the
+    intrinsics and the ``FitParams``. A command that passed another value of a field calls with other
+    arguments and gets its own fits, as before; every call made with the same arguments gets the fits the first
+    one computed (each its own deep copy), which is what the deterministic ``fit_prepared`` returns again
+    (tests/zcut/fits/ check it and its digests)."""
+    import zcut.fits
+
+    real = zcut.fits.fit_prepared
+    memo: dict = {}
+
+    def fit_prepared(xyz_mm, zone, model, *, intrinsics=None, params=None):
+        key = (_digest(xyz_mm), _digest(zone), id(model), None if intrinsics is None else tuple(intrinsics),
+               params)
+        if key not in memo:
+            memo[key] = (model, real(xyz_mm, zone, model, intrinsics=intrinsics, params=params))
+        return copy.deepcopy(memo[key][1])
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(zcut.fits, "fit_prepared", fit_prepared)
+        yield memo
+
+
+@pytest.fixture(scope="module", autouse=True)
+def prepared_once():
+    """``replay.pipeline.bin_model.prepared_bin_model`` (the bin model's search structures, which every command's
+    session reads back from the cache folder: ~0.07 CPU s, four sessions a field) made or read once per distinct
+    call in this module, keyed as the cache folder keys it: the model's points, normals and spacing, and the
+    registration's and removal's parameters (their repr). A command that passed another registration or removal
+    value gets its own, as before; the read-back equals the preparation bit for bit
+    (tests/replay/pipeline/test_bin_model_cache.py), and the pipeline only reads a prepared model (a session's
+    frames in flight share one)."""
+    from replay.pipeline import bin_model as bm
+
+    real = bm.prepared_bin_model
+    memo: dict = {}
+
+    def prepared_bin_model(model, *, registration, removal):
+        key = (_digest(model.points), None if model.normals is None else _digest(model.normals),
+               repr(float(model.spacing_m)), repr(registration), repr(removal))
+        if key not in memo:
+            memo[key] = real(model, registration=registration, removal=removal)
+        return memo[key]
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(bm, "prepared_bin_model", prepared_bin_model)
+        yield memo
 
 
 @pytest.fixture(scope="module")
