@@ -294,6 +294,10 @@ def run(log: Path, mode: str, db: Path, browser, viewport, work: Path) -> list[d
     try:
         assert srv.page.catalogue.wait_until_done(3600)
         page, blocked = open_page(browser, srv.base, srv.token, viewport)
+        # the list by score, rows that do not move when the assistant's proposals arrive: the person reads the rows,
+        # then clicks one by its index, and a re-sort in between decided another group (docs/labelling_real.md,
+        # h/stereo4; the page holds its order only while the pointer is over the list)
+        page.select_option("#sortkey", "score")
         n = len(srv.page.catalogue.frames)
         for k in range(n):
             wait_until(page, "window.zcut.state() && window.zcut.state().entries >= 0")

@@ -433,7 +433,7 @@ function renderBulkHint(fd) {
   }
   $('bulkhint').textContent = $('bulkhint').title = parts.join(' ');
   const a = $('assistinfo');
-  if (a) a.textContent = a.title = pr ? pr.message + (pr.why_not && pr.model ? ` — ${pr.why_not}` : '') : 'assistant: …';
+  if (a) a.textContent = a.title = heldText(fd) || (pr ? pr.message + (pr.why_not && pr.model ? ` — ${pr.why_not}` : '') : 'assistant: …');
 }
 
 function select(k, { zoom = true, t0 = performance.now() } = {}) {
@@ -1130,6 +1130,36 @@ function readout() {
   box.textContent = parts.join(' · ');
 }
 
+// ------------------------------------------------------------------ the list holds still under the pointer
+// What reaches the page on its own — the assistant's proposals (whenever the server has retrained on the labels
+// saved) and the fits — re-orders the list: a row the person is about to click would move and the click decide
+// another group (a scripted person in a real browser decided the wrong group 0-2 times a frame this way; docs/
+// labelling_real.md). While the pointer is over the list such updates of the frame shown wait, the line below the
+// list says so (not the heading above it: a longer heading would move the rows), and they are applied when the
+// pointer leaves the list (or when the frame is shown again). What the person's own inputs change (a decision, K,
+// Ctrl+click) applies at once.
+let listHeld = false;
+function heldText(fd) {
+  return fd && fd.held && fd.held.size ? `new ${[...fd.held.keys()].join(' and ')}: shown when the pointer leaves the list` : '';
+}
+function whenListFree(fd, apply, what) {
+  if (listHeld && state.cur === fd) {
+    (fd.held || (fd.held = new Map())).set(what, apply);  // the latest of each kind
+    const a = $('assistinfo'); if (a) a.textContent = a.title = heldText(fd);
+    window.zcut.heldUpdates = (window.zcut.heldUpdates || 0) + 1;
+  } else apply();
+}
+function applyHeld(fd) {
+  if (!fd || !fd.held || !fd.held.size) return;
+  const held = [...fd.held.values()]; fd.held = null;
+  for (const apply of held) apply();
+}
+$('candlist').addEventListener('mouseenter', () => { listHeld = true; });
+$('candlist').addEventListener('mouseleave', () => {
+  listHeld = false;
+  if (state.cur && state.cur.held && state.cur.held.size) { applyHeld(state.cur); renderList(); requestDraw(); }
+});
+
 // ------------------------------------------------------------------ the assistant's proposals
 let assistantVersion = -1;
 async function loadProposals(fd) {
@@ -1137,10 +1167,10 @@ async function loadProposals(fd) {
     const r = await fetch(`/api/frames/${fd.index}/proposals`);
     if (!r.ok) return;
     const j = await r.json();
-    fd.prop = { p: j.p, prefill: j.prefill, why_not: j.why_not, version: j.version, message: j.message,
-                confident: j.confident, model: j.model };
+    const prop = { p: j.p, prefill: j.prefill, why_not: j.why_not, version: j.version, message: j.message,
+                   confident: j.confident, model: j.model };
     assistantVersion = Math.max(assistantVersion, j.version);
-    if (state.cur === fd) { refreshList(fd, true); requestDraw(); }
+    whenListFree(fd, () => { fd.prop = prop; if (state.cur === fd) { refreshList(fd, true); requestDraw(); } }, 'proposals');
     window.zcut.proposalsLoaded = (window.zcut.proposalsLoaded || 0) + 1;
   } catch (e) { /* the next poll tries again */ }
 }
@@ -1151,7 +1181,7 @@ async function pollAssistant() {
       const j = await r.json();
       window.zcut.assistant = j;
       if (j.version !== assistantVersion && state.cur) { assistantVersion = j.version; await loadProposals(state.cur); }
-      else if (state.cur && !state.cur.prop) await loadProposals(state.cur);
+      else if (state.cur && !state.cur.prop && !(state.cur.held && state.cur.held.has('proposals'))) await loadProposals(state.cur);
     }
   } catch (e) { /* the server may be gone: the save path says so */ }
   setTimeout(pollAssistant, 1500);
@@ -1263,7 +1293,7 @@ async function loadFits(fd) {
     const r = await fetch(`/api/frames/${fd.index}/fits`);
     if (!r.ok) throw new Error(`fits: HTTP ${r.status}`);
     const f = parseFitsBundle(await r.arrayBuffer());
-    if (f.header.status === 'ready' || f.header.status === 'none' || f.header.status === 'error') applyFits(fd, f);
+    if (f.header.status === 'ready' || f.header.status === 'none' || f.header.status === 'error') whenListFree(fd, () => applyFits(fd, f), 'fits');
     else {
       fd.fits = f; if (state.cur === fd) showFitInfo(fd);
       setTimeout(() => { if (state.cur === fd) loadFits(fd); }, 1000);
@@ -1342,6 +1372,7 @@ async function goTo(index, t0 = performance.now()) {
   // the canvas first (its size read before the page's text changes: one layout, not two), then the rest
   if (!sameFlags(fd.ovFlags, flags())) renderOverlay();
   fit(false);  // a new frame starts at the overview
+  applyHeld(fd);  // what arrived while the pointer was over its list
   refreshList(fd, false, false);  // the candidates (for the markers), their rows below
   draw();
   const t2 = performance.now();
