@@ -49,6 +49,7 @@ STEPS = (
     ("suspects.union", "floating_components", None),
     ("suspects.floating", "_zone_heights", "floating_components"),
     ("suspects.floating", "find_clusters", "floating_components"),
+    ("suspects.floating", "cluster_labels_of", "floating_components"),  # its clusters only (2026-12-07d)
     ("suspects.floating", "_evidence_kernel", "floating_components"),
     ("suspects.floating", "_kept_ring", "floating_components"),
     ("suspects.union", "_codes_and_masks", None),
