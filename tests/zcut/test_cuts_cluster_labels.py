@@ -137,3 +137,45 @@ def test_checks_as_find_clusters() -> None:
         cluster_labels_of(np.zeros(5), params=ZCutParams(step=0.1, max_depth=1.0, max_area=5.0))
     with pytest.raises(ParameterError):
         cluster_labels_of(np.zeros((3, 3)), params=(0.1, 1.0, 5.0))  # type: ignore[arg-type]
+
+
+def test_the_suspects_call_itself() -> None:
+    """cluster_labels_of as zcut.suspects.floating calls it (its arguments captured, on two small synthetic frames):
+    the whole range in the cuts, every kernel's find_clusters as the union-find's (tests/zcut/test_cuts_deep.py's
+    check), and cluster_labels_of's clusters, areas and levels find_clusters'. The floating detector's cut is this
+    call since round 2026-12-07e (test_cuts_deep.py's test of the same name spies find_clusters, which the detector
+    no longer calls)."""
+    import importlib
+
+    from test_cuts_deep import check_all, whole
+    from test_cuts_fast import height_mm
+
+    from replay.synth import synthesize_frame
+    from zcut.edge_surface import EdgeSurfaceParams
+    from zcut.params import SuspectParams
+    from zcut.suspects import suspects
+
+    floating = importlib.import_module("zcut.suspects.floating")
+    calls: list[tuple[np.ndarray, ZCutParams]] = []
+    real = floating.cluster_labels_of
+
+    def spy(h: np.ndarray, *, params: ZCutParams) -> object:
+        calls.append((h.copy(), params))
+        return real(h, params=params)
+
+    for kind, seed in (("zinc_nuts", 11), ("spheres", 12)):
+        xyz = synthesize_frame(kind=kind, seed=seed, size=(120, 192)).frame.xyz
+        h = height_mm(xyz)
+        zone = np.isfinite(xyz).all(axis=2)
+        calls.clear()
+        mp = pytest.MonkeyPatch()
+        try:
+            mp.setattr(floating, "cluster_labels_of", spy)
+            suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
+        finally:
+            mp.undo()
+        assert len(calls) == 1
+        hz, p = calls[0]
+        assert whole(hz, p)
+        check_all(hz, p, reference=False)
+        assert same_clusters(hz, p) > 0
