@@ -244,11 +244,6 @@ def _nan_to_num(a, nan):  # type: ignore[no-untyped-def]  # numba kernel
             f[q] = -big
 
 
-#: :func:`_interp_in_place`'s blocks of values: the heights within a block's range are compared one by one (a
-#: block of neighbouring pixels spans few of the profile's bins)
-_INTERP_BLOCK = 64
-
-
 @numba.njit(cache=True, error_model="numpy")  # IEEE division
 def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
     """``a[:] = np.interp(np.nan_to_num(a, nan=xp[0]), xp, fp)`` (``xp`` non-decreasing, at least one entry),
@@ -268,13 +263,11 @@ def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
         slopes[k] = (fp[k + 1] - fp[k]) / (xp[k + 1] - xp[k])
     lo = xp[0]
     hi = xp[n - 1]
-    B = _INTERP_BLOCK
+    B = 1024
     xb = np.empty(B)
     jb = np.empty(B, np.int64)
     for s0 in range(0, f.size, B):
         m = min(B, f.size - s0)
-        b_lo = np.inf
-        b_hi = -np.inf
         for t in range(m):
             x = f[s0 + t]
             if x != x:
@@ -284,40 +277,30 @@ def _interp_in_place(a, xp, fp):  # type: ignore[no-untyped-def]  # numba kernel
             elif x == -np.inf:
                 x = -big
             xb[t] = x
-            b_lo = min(b_lo, x)
-            b_hi = max(b_hi, x)
-        # the heights at or below the block's least value count for every value, those above its largest for
-        # none (no value is NaN here): a pass over the block for each height between them only
-        base = 0
-        for k in range(1, n - 1):
-            base += xp[k] <= b_lo
-        for t in range(m):
-            jb[t] = base
+            jb[t] = 0
         for k in range(1, n - 1):
             xk = xp[k]
-            if xk <= b_lo or xk > b_hi:
-                continue
             for t in range(m):
                 jb[t] += xk <= xb[t]
-        if n == 1:
-            for t in range(m):
-                f[s0 + t] = fp[0]
-            continue
-        # each value's case chosen without a branch (the cases in numpy's order of precedence: left of xp[0],
-        # from xp[-1] on, on a height, between two), j in 0 .. n - 2 whatever the case; only the interpolation
-        # that gives NaN takes numpy's second try, a branch
         for t in range(m):
             x = xb[t]
+            if n == 1 or x < lo:
+                f[s0 + t] = fp[0]
+                continue
+            if x >= hi:  # x > xp[-1]: fp[-1]; x == xp[-1]: j = n - 1, fp[n - 1]
+                f[s0 + t] = fp[n - 1]
+                continue
             j = jb[t]
+            if xp[j] == x:
+                f[s0 + t] = fp[j]
+                continue
             sl = slopes[j]
             v = sl * (x - xp[j]) + fp[j]
-            if v != v and lo <= x < hi and xp[j] != x:
+            if v != v:
                 v = sl * (x - xp[j + 1]) + fp[j + 1]
                 if v != v and fp[j] == fp[j + 1]:
                     v = fp[j]
-            r = fp[j] if xp[j] == x else v
-            r = fp[n - 1] if x >= hi else r  # x > xp[-1]: fp[-1]; x == xp[-1]: j = n - 1, fp[n - 1]
-            f[s0 + t] = fp[0] if x < lo else r
+            f[s0 + t] = v
 
 
 def _sigma_px(profile: NoiseProfile, context: np.ndarray, *, out: np.ndarray | None = None) -> np.ndarray:
