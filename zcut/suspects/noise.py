@@ -422,41 +422,6 @@ def _sorted_median(s: np.ndarray) -> float:
     return b if n % 2 else (a + b) / 2.0
 
 
-@numba.njit(cache=True)
-def _bin_order(upper, x, by_bin, ends):  # type: ignore[no-untyped-def]  # numba kernel
-    """``which = np.minimum(np.searchsorted(upper, x, side="left"), B - 1)`` (B = ``upper.size``, non-decreasing):
-    each value's count of ``upper`` below it, by B comparisons (in vector lanes; a value equal to an upper end is
-    not above it, as numpy's ``<``), then ``by_bin = np.argsort(which, kind="stable")`` and ``ends[k]`` the
-    start of bin k in it (``ends[B]`` = the count) by a counting sort: stable, so the same order. False when an
-    entry of either is NaN (numpy sorts NaN last: its way is taken then); the outputs are then unspecified."""
-    B = upper.size
-    n = x.size
-    for i in range(B):
-        if upper[i] != upper[i]:
-            return False
-    which = np.empty(n, np.int64)
-    counts = np.zeros(B + 1, np.int64)
-    for t in range(n):
-        v = x[t]
-        if v != v:
-            return False
-        k = 0
-        for i in range(B):
-            k += upper[i] < v
-        k = min(k, B - 1)
-        which[t] = k
-        counts[k + 1] += 1
-    for k in range(B):
-        counts[k + 1] += counts[k]
-    for k in range(B + 1):
-        ends[k] = counts[k]
-    for t in range(n):
-        k = which[t]
-        by_bin[counts[k]] = t
-        counts[k] += 1
-    return True
-
-
 def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     """σ̂ and the depth step as functions of height, measured on the frame itself.
 
@@ -481,13 +446,10 @@ def noise_profile(height: FloatImage, judged: Mask) -> NoiseProfile:
     sigmas = np.array([_robust_sigma_one_partition(a[i:j]) for i, j in zip(edges[:-1], edges[1:])])
     # a first difference belongs to the bin whose range of second-difference heights holds it
     upper = np.array([at[j - 1] for j in edges[1:]])
+    which = np.minimum(np.searchsorted(upper, d1_at, side="left"), bins - 1)
     steps = np.zeros(bins)
-    by_bin = np.empty(d1_at.size, np.int64)
-    ends = np.zeros(bins + 1, np.int64)
-    if not _bin_order(upper, d1_at, by_bin, ends):  # a NaN: numpy's order of it
-        which = np.minimum(np.searchsorted(upper, d1_at, side="left"), bins - 1)
-        by_bin = np.argsort(which.astype(np.int8), kind="stable")  # bins < 128: a radix sort
-        ends = np.searchsorted(which[by_bin], np.arange(bins + 1), side="left")
+    by_bin = np.argsort(which.astype(np.int8), kind="stable")  # bins < 128: a radix sort
+    ends = np.searchsorted(which[by_bin], np.arange(bins + 1), side="left")
     for k in range(bins):
         v = d1[by_bin[ends[k]:ends[k + 1]]]
         nonzero = v[v > 0]
