@@ -17,6 +17,8 @@ look up are replaced by wrappers while timing): per step, the median over ``--re
 ms (``time.process_time``: every thread), of its system ms and of its minor page faults
 (``getrusage``), the steps nested (a wrapper's time includes the wrapped steps it calls). The line
 ``whole`` is the call; ``own`` is the whole less the top-level steps.
+The last line sums the whole calls' medians over the synthetic frames but the held-out one (``HELD_OUT``): the six
+classes of the suspects' bar (docs/performance.md), with the ratio old / new.
 """
 
 from __future__ import annotations
@@ -49,6 +51,7 @@ STEPS = (
     ("suspects.union", "floating_components", None),
     ("suspects.floating", "_zone_heights", "floating_components"),
     ("suspects.floating", "find_clusters", "floating_components"),
+    ("suspects.floating", "cluster_labels_of", "floating_components"),  # its clusters only (2026-12-07d)
     ("suspects.floating", "_evidence_kernel", "floating_components"),
     ("suspects.floating", "_kept_ring", "floating_components"),
     ("suspects.union", "_codes_and_masks", None),
@@ -133,6 +136,9 @@ class Steps:
         return res, out
 
 
+#: Frames of ``--work`` left out of the classes' sum: the held-out ray-traced seed (h/sus15's table sums six classes).
+HELD_OUT = ("raytraced_q0_s6",)
+
 FIELDS = ("mask", "groups", "detectors", "gap_mm", "residual_mm", "group_detectors", "group_primary", "group_size",
           "group_gap_mm", "group_bbox", "group_score", "merge_radius_px")
 
@@ -197,6 +203,7 @@ def main() -> None:
     if args.against is not None:
         trees.insert(0, ("old", load_tree(args.against.resolve(), "zcut_old")))
     steps = {tag: Steps(pkg.__name__) for tag, pkg in trees}
+    wholes: dict[str, dict[str, float]] = {}  # label -> tree -> the whole call's median CPU s
     print(f"CPU ms per call{' (patches=False: the page with a part model)' if args.fits else ''} "
           f"(median of {args.repeat}, the trees alternating in one process); "
           f"sys ms and minor page faults (k) beside; load average {' '.join(f'{v:.1f}' for v in __import__('os').getloadavg())}")
@@ -230,6 +237,7 @@ def main() -> None:
             return np.median([g.get(name, np.full(3, np.nan)) for g in got[tag]], axis=0)
 
         tags = [t for t, _ in trees]
+        wholes[label] = {t: float(med(t, "whole")[0]) for t in tags}
         print(f"{label}  ({xyz.shape[1]}x{xyz.shape[0]}, {int(zone.sum())} valid)")
         names = ["whole"]
         if args.steps:
@@ -251,6 +259,13 @@ def main() -> None:
                 own = [g["whole"][0] - sum(g.get(n, np.zeros(3))[0] for n in tops) for g in got[t]]
                 print(f"  own ({t}): {1000 * float(np.median(own)):.1f}")
         sys.stdout.flush()
+    summed = [lab for lab in wholes if lab.startswith("speed_") and not any(h in lab for h in HELD_OUT)]
+    if summed:
+        sums = {t: sum(wholes[lab][t] for lab in summed) for t in wholes[summed[0]]}
+        line = " -> ".join(f"{1000 * v:,.1f}" for v in sums.values())
+        ratio = f", ratio {sums['old'] / sums['new']:.3f}" if len(sums) == 2 else ""
+        print(f"sum of the whole calls over {len(summed)} classes (CPU ms, old -> new): {line}{ratio}; "
+              f"load average {' '.join(f'{v:.1f}' for v in __import__('os').getloadavg())}")
 
 
 if __name__ == "__main__":

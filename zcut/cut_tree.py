@@ -71,6 +71,8 @@ __all__ = [
     "node_image",
     "outlier_mask",
     "pixel_levels",
+    "pruned_cluster_labels",
+    "pruned_clusters",
     "pruned_outlier_mask",
     "pruned_outliers",
     "pruned_scratch",
@@ -1683,6 +1685,82 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     _, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
     pruned_outlier_mask(z, gl, kept, fin, node_parent, tagged, out, wr, wc, ww)
     return True
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_cluster_labels(z, lab, pix, fin, node_parent, tagged, labels, wr=0, wc=0, ww=-1):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`listed_cluster_labels` over the pixels kept by :func:`gentle_prune` (``labels`` (H * W,) int32,
+    zeroed; the flat index and the validity of a pixel found from its padded index in the window as
+    :func:`pruned_outlier_mask` finds them): the same numbers (raster order of first valid pixel: ``pix`` is in
+    raster order); returns the clusters' nodes and their valid pixel counts."""
+    outer = _outermost(fin, node_parent, tagged)
+    n_nodes = tagged.size
+    number = np.zeros(n_nodes, np.int64)
+    tops = np.empty(n_nodes, np.int64)
+    areas = np.zeros(n_nodes, np.int64)
+    ZW = z.shape[1]
+    W = ZW if ww < 0 else ww
+    Wp = W + 2
+    inv = 1.0 / Wp
+    zf = z.reshape(-1)
+    n = 0
+    for t in range(pix.size):
+        p = pix[t]
+        x = outer[lab[p]]
+        if x < 0:
+            continue
+        rp = np.int64((p + 0.5) * inv)  # (as pruned_outlier_mask)
+        o = (wr + rp - 1) * ZW + wc + (p - rp * Wp - 1)
+        if not np.isfinite(zf[o]):
+            continue
+        if number[x] == 0:
+            tops[n] = x
+            n += 1
+            number[x] = n
+        i = number[x]
+        labels[o] = i
+        areas[i - 1] += 1
+    return tops[:n], areas[:n]
+
+
+@numba.njit(cache=True, nogil=True)
+def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, labels):  # type: ignore[no-untyped-def]  # numba kernel
+    """:func:`pruned_outliers` with :func:`pruned_cluster_labels` as its read-out: the cluster labels of
+    :func:`zcut.cuts.find_clusters` into ``labels`` ((H * W,) int32, zeroed), from the flood over the pixels of
+    the small gentle components only (the tagged nodes, as pixel sets, are the whole tree's: :func:`gentle_prune`;
+    so are the outermost ones, and their numbers, by their first valid pixel in raster order). Returns (applied,
+    the clusters' areas, their levels ``max(b, 1)``); not applied: nothing written (as :func:`pruned_outliers`)."""
+    H, W = z.shape
+    empty = np.zeros(0, np.int64)
+    thr = z_max - top * step
+    wr, wc, wh, ww = 0, 0, H, W
+    bound = H * W
+    some = z_min < thr
+    if some:
+        wr, wc, wh, ww, n_read = cuts_window(seg_max, thr, W)
+        bound = n_read * SEGMENT
+        if bound < minimum:
+            return False, empty, empty
+        bound = min(bound, wh * ww)
+    listed = some and 2 * bound <= H * W
+    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
+    if listed:
+        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
+        start = np.zeros(top + 2, np.int64)
+        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
+    else:
+        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
+        start = np.zeros(top + 2, np.int64)
+        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
+    kept = pix[:keep]
+    node_b, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
+    tops, areas = pruned_cluster_labels(z, gl, kept, fin, node_parent, tagged, labels, wr, wc, ww)
+    levels = np.empty(tops.size, np.int64)
+    for i in range(tops.size):
+        levels[i] = max(node_b[tops[i]], 1)
+    return True, areas, levels
 
 
 @numba.njit(cache=True, nogil=True)

@@ -110,6 +110,7 @@ from .cut_tree import (
     node_image,
     outlier_mask,
     pixel_levels,
+    pruned_clusters,
     pruned_outliers,
     pruned_scratch,
     qlevel,
@@ -124,6 +125,7 @@ __all__ = [
     "KERNELS",
     "CutResult",
     "StageTree",
+    "cluster_labels_of",
     "find_clusters",
     "find_clusters_many",
     "n_levels",
@@ -568,6 +570,66 @@ def find_clusters(height: FloatImage, *, params: ZCutParams, kernel: str = "auto
         ``result.outliers`` equals :func:`zcut_outliers` with the same parameters.
     """
     return StageTree(height, params=params, kernel=kernel).answer(params)
+
+
+def cluster_labels_of(height: FloatImage, *, params: ZCutParams) -> tuple[Labels, np.ndarray, np.ndarray]:
+    """``(clusters, areas, levels)`` of :func:`find_clusters` ``(height, params=params)``, bit for bit, without the
+    rest of its stage view (no pixel levels, no counts per level), by the pruned flood where it applies, else by
+    the whole tree's flood (:func:`_cluster_labels`).
+
+    For a caller that reads only the clusters, e.g. the suspects' floating detector, whose z-cut holds every pixel
+    of the frame (the zone's whole height range): there the whole tree's flood visits every pixel above the
+    deepest level, the pruned one the pixels of the gentle components smaller than ``max_area`` only
+    (docs/performance.md, round 2026-12-07d).
+    """
+    return _cluster_labels(height, params)
+
+
+def _cluster_labels(height: FloatImage, params: ZCutParams, *, minimum: int = PRUNE_MIN, check: int | None = None
+                    ) -> tuple[Labels, np.ndarray, np.ndarray]:
+    """:func:`cluster_labels_of`; ``minimum`` and ``check`` as :func:`_pruned_outliers`' (the tests force the
+    pruned flood on small frames with ``minimum=0``).
+
+    **Every pixel in the cuts.** When the cut at the deepest level ``top`` holds every pixel (the lowest height's
+    level ``q_min`` is at most ``top``: K >= q_min - 1), the clusters are those of ``K' = q_min - 2`` (when >= 1,
+    and ``max_area`` at most the frame's pixels), whose cuts leave out the pixels at ``q_min`` (the invalid ones
+    among them: they stand at the lowest height). Why: the cut at ``q_min`` is the whole pixel grid, one
+    component, so the tree's root is born at ``q_min`` with every pixel (never tagged: its size is not below
+    ``max_area``), a pixel at ``q_min`` is in the root only, and the root's children are the components of the cut
+    at ``q_min - 1``, ending at ``q_min`` (:func:`zcut.cut_tree.flood_whole`). With ``K'`` the tree is the same
+    below ``q_min`` (the levels are those of ``z_max`` and ``step``, not of K), those children are its roots,
+    ending at ``K' + 2 = q_min`` too, and a node is tagged iff ``max(b, 1) <= min(K, e - 2)`` and its size is
+    below ``max_area``: for every node ``e <= q_min``, so ``min(K, e - 2) = e - 2 = min(K', e - 2)`` (K >= K').
+    Its levels (``max(b, 1)`` of a cluster's node) are the same nodes' too."""
+    z = _check_height(height)
+    step, max_area, connectivity, K = _stage_params(params)
+    H, W = z.shape
+    n, z_min, z_max, seg_max = _finite_range(z)
+    if n > 0 and K >= 1:
+        q_min = int(qlevel(z_min, z_max, step, np.int64(min(K, _K_CAP) + 2)))
+        if K >= q_min - 1 and q_min >= 3 and max_area <= H * W:
+            K = q_min - 2  # (above)
+        k_eff, top = _levels(z_min, z_max, step, K)
+        if top < SHALLOW_LEVELS and (H + 2) * (W + 2) < 2**31 - 1 and max_area <= H * W:
+            clusters = np.zeros((H, W), dtype=np.int32)
+            conn8 = connectivity == 8
+            if check is None:
+                check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
+            ok, areas, levels = pruned_clusters(z, seg_max, z_min, z_max, step, np.int64(k_eff), np.int64(top), conn8,
+                                                conn8, float(max_area), np.int64(check), np.int64(minimum),
+                                                clusters.reshape(-1))
+            if ok:
+                return clusters, areas, levels.astype(np.int32)
+        # the whole tree's flood (find_clusters' own), without the pixel levels and the counts per level
+        tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity)
+        if tree is not None:
+            clusters = np.zeros((H, W), dtype=np.int32)
+            outliers = np.zeros((H, W), dtype=bool)
+            tops, areas = listed_cluster_labels(tree.lab, tree.pix, tree.own, tree.fin, tree.node_parent, tree.tagged,
+                                                clusters.reshape(-1), outliers.reshape(-1))
+            return clusters, areas, np.maximum(tree.node_b[tops], 1).astype(np.int32)
+    cut = find_clusters(z, params=params)
+    return cut.clusters, cut.areas, cut.levels
 
 
 def _stage_params(params: object) -> tuple[float, float, int, int]:

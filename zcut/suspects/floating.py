@@ -20,7 +20,7 @@ import numba
 import numpy as np
 
 from ..cloud import check_mask
-from ..cuts import MAX_STAGE_LEVELS, find_clusters
+from ..cuts import MAX_STAGE_LEVELS, cluster_labels_of
 from ..errors import InputShapeError, describe_array
 from ..params import SuspectParams, ZCutParams
 from ..types import FloatImage, Labels, Mask
@@ -354,11 +354,13 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     span = float(hi - lo)  # (a zero's sign may differ from hz[fin]'s max / min: the step and depth do not)
     step = max(step, span / (MAX_STAGE_LEVELS - 2))  # every level of the range within find_clusters' cap
     depth = span + step
-    cut = find_clusters(hz, params=ZCutParams(step=step, max_depth=depth, max_area=params.floating_rho * a_max))
-    n = cut.n_clusters
+    # find_clusters' clusters and areas, by the pruned flood where it applies (zcut.cuts.cluster_labels_of)
+    lab, areas, _ = cluster_labels_of(hz, params=ZCutParams(step=step, max_depth=depth,
+                                                           max_area=params.floating_rho * a_max))
+    n = int(areas.size)
     if n == 0:
         return none
-    lab = cut.clusters  # int32, 1..n, C-contiguous (find_clusters' own array)
+    # lab: int32, 1..n, C-contiguous (cluster_labels_of's own array)
     size, holes_n, edges, edges_valid, n_rough, lowest, highest_out = _evidence_kernel(
         lab, np.ascontiguousarray(valid), np.ascontiguousarray(rough), hz, n)
     holes, rough_frac, ring, clearance = _fractions(size, holes_n, edges, edges_valid, n_rough, lowest, highest_out)
@@ -367,14 +369,14 @@ def floating_components(height_mm: np.ndarray, zone: Mask, valid: Mask, rough: M
     lowest = lowest[1:]
     clear = clearance > np.maximum(FLOATING_CLEARANCE_SIGMAS * profile.sigma_at(lowest),
                                    FLOATING_CLEARANCE_STEPS * profile.step_at(lowest))
-    keep = clear & ((cut.areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
+    keep = clear & ((areas < params.plain_rho * a_max) | (holes >= params.evidence_holes)
                     | (rough_frac >= params.evidence_inconsistent) | (ring >= params.evidence_ring_valid))
-    owned = clear & (cut.areas < FLOATING_OWNED_RHO * a_max)
+    owned = clear & (areas < FLOATING_OWNED_RHO * a_max)
     if judged is not None and owned.any():
         _judged_pixels(lab, np.concatenate([[False], owned]), zone, judged)
     mask = np.empty((H, W), bool)
     idx, ring_lab, ring_h = _kept_ring(lab, np.concatenate([[False], keep]), zone, valid, height_mm,
-                                       int(cut.areas.sum()), mask)
+                                       int(areas.sum()), mask)
     if idx.size == 0:
         return mask, idx, np.zeros(0)
     ring_med = label_medians(ring_h, ring_lab, n)
