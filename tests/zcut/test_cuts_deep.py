@@ -174,8 +174,9 @@ def test_whole_range_on_a_raytraced_frame() -> None:
 
 
 def test_the_suspects_call_itself() -> None:
-    """find_clusters as zcut.suspects.floating calls it (its arguments captured): every field as the
-    union-find's, on two small synthetic frames."""
+    """The cut as zcut.suspects.floating calls it (``cluster_labels_of``, its arguments captured): find_clusters
+    on those arguments, every field as the union-find's, on two small synthetic frames (that cluster_labels_of
+    equals find_clusters there: tests/zcut/test_cuts_cluster_labels.py)."""
     from replay.synth import synthesize_frame
     from zcut.edge_surface import EdgeSurfaceParams
     from zcut.params import SuspectParams
@@ -183,7 +184,7 @@ def test_the_suspects_call_itself() -> None:
 
     floating = importlib.import_module("zcut.suspects.floating")
     calls: list[tuple[np.ndarray, ZCutParams]] = []
-    real = floating.find_clusters
+    real = floating.cluster_labels_of
 
     def spy(h: np.ndarray, *, params: ZCutParams) -> object:
         calls.append((h.copy(), params))
@@ -196,7 +197,7 @@ def test_the_suspects_call_itself() -> None:
         calls.clear()
         mp = pytest.MonkeyPatch()
         try:
-            mp.setattr(floating, "find_clusters", spy)
+            mp.setattr(floating, "cluster_labels_of", spy)
             suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
         finally:
             mp.undo()
