@@ -8,7 +8,6 @@ Oracles: the literal loop (:func:`zcut.zcut_outliers_reference`) for the masks, 
 
 from __future__ import annotations
 
-import importlib
 import math
 
 import numpy as np
@@ -171,40 +170,6 @@ def test_whole_range_on_a_raytraced_frame() -> None:
     assert whole(z, p)
     check_all(z, p, reference=False)
     check_all(z, suspects_params(z), reference=True)
-
-
-def test_the_suspects_call_itself() -> None:
-    """The cut as zcut.suspects.floating calls it (``cluster_labels_of``, its arguments captured): find_clusters
-    on those arguments, every field as the union-find's, on two small synthetic frames (that cluster_labels_of
-    equals find_clusters there: tests/zcut/test_cuts_cluster_labels.py)."""
-    from replay.synth import synthesize_frame
-    from zcut.edge_surface import EdgeSurfaceParams
-    from zcut.params import SuspectParams
-    from zcut.suspects import suspects
-
-    floating = importlib.import_module("zcut.suspects.floating")
-    calls: list[tuple[np.ndarray, ZCutParams]] = []
-    real = floating.cluster_labels_of
-
-    def spy(h: np.ndarray, *, params: ZCutParams) -> object:
-        calls.append((h.copy(), params))
-        return real(h, params=params)
-
-    for kind, seed in (("zinc_nuts", 11), ("spheres", 12)):
-        xyz = synthesize_frame(kind=kind, seed=seed, size=(120, 192)).frame.xyz
-        h = height_mm(xyz)
-        zone = np.isfinite(xyz).all(axis=2)
-        calls.clear()
-        mp = pytest.MonkeyPatch()
-        try:
-            mp.setattr(floating, "cluster_labels_of", spy)
-            suspects(xyz, h, zone, params=SuspectParams(), edge_surface=EdgeSurfaceParams())
-        finally:
-            mp.undo()
-        assert len(calls) == 1
-        hz, p = calls[0]
-        assert whole(hz, p)
-        check_all(hz, p, reference=False)
 
 
 @pytest.mark.parametrize("shape", [(1, 1), (1, 9), (9, 1), (2, 2), (3, 70), (70, 3)])
