@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -115,19 +114,12 @@ def test_annotate_uses_the_logs_model_and_says_so_on_the_page(logs, tmp_path):
     from annotate_helpers import ServerProcess
 
     _, synth, _, bare = logs
-    # the two servers (independent processes) start at the same time; each one started is stopped
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        starting = [pool.submit(ServerProcess, log, tmp_path / f"{log.stem}.sqlite", annotator="alice")
-                    for log in (synth, bare)]
-    servers = [f.result() for f in starting if f.exception() is None]
-    try:
-        for f in starting:
-            f.result()  # a server that did not start fails the test (the others are stopped below)
-        notes_of = [httpx.get(f"{srv.base}/api/session", headers=srv.headers()).json()["notes"] for srv in servers]
-    finally:
-        for srv in servers:
+    for log, has in ((synth, True), (bare, False)):
+        srv = ServerProcess(log, tmp_path / f"{log.stem}.sqlite", annotator="alice")
+        try:
+            notes = httpx.get(f"{srv.base}/api/session", headers=srv.headers()).json()["notes"]
+        finally:
             srv.stop()
-    for srv, notes, has in zip(servers, notes_of, (True, False)):  # the synthetic log carries its model
         warned = [x for x in srv.stderr_lines if NO_MODEL in x]
         if has:
             assert not warned and not any(NO_MODEL in n for n in notes), (srv.stderr_lines, notes)

@@ -6,8 +6,7 @@ them: a kernel whose result depended on the split would show here).
 
 The layer is chosen once per process, so every run is a subprocess set up as ``zcut replay`` sets itself up;
 one subprocess per (layer, frames in flight, threads) replays every log that setting is checked on, one after
-the other (the real log, which runs no parallel kernel, first: the layer is read after each log); two of these
-subprocesses run at a time (each process's layer and thread count are its own).
+the other (the real log, which runs no parallel kernel, first: the layer is read after each log).
 Classes of log: synthetic zinc nuts and spheres (the bin stages on), frames with large invalid regions, an
 all-invalid frame and a frame with one valid pixel, and the real Kinect log (no bin). The parallel kernels are
 also driven alone on empty, 1 x 1 and 1 x N images.
@@ -17,9 +16,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-from collections.abc import Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -180,13 +176,12 @@ def replays(logs: dict[str, Path]) -> dict[tuple[tuple[str, int, int | None], st
         if kind in paths:
             for run in (ORACLE, *RUNS[kind]):
                 wanted.setdefault(run, []).append(kind)
-    with ThreadPoolExecutor(max_workers=2) as pool:  # two processes at a time: each is mostly one core's work
-        pending = {run: pool.submit(_replay, [paths[k] for k in these], layer=run[0], in_flight=run[1],
-                                    threads=run[2]) for run, these in wanted.items()}
-        out = {}
-        for run, these in wanted.items():
-            for kind, got in zip(these, pending[run].result()):
-                out[(run, kind)] = got
+    out = {}
+    for run, these in wanted.items():
+        layer, in_flight, threads = run
+        for kind, got in zip(these, _replay([paths[k] for k in these], layer=layer, in_flight=in_flight,
+                                            threads=threads)):
+            out[(run, kind)] = got
     return out
 
 
@@ -232,17 +227,13 @@ print(json.dumps({"layer": numba.threading_layer(), "out": out}))
 '''
 
 
-def _kernels_run(layer: str) -> subprocess.CompletedProcess[str]:
+@pytest.mark.parametrize("layer", ["default", "workqueue"])
+def test_the_parallel_kernels_on_degenerate_shapes_whatever_the_threads(layer):
     env = {k: v for k, v in os.environ.items() if not k.startswith(("NUMBA_THREADING", "NUMBA_NUM_THREADS"))}
     env.update(PYTHONPATH=str(ROOT), NUMBA_NUM_THREADS="3")
     if layer != "default":
         env["NUMBA_THREADING_LAYER"] = layer
-    return run_python(_KERNELS, "1", "2", "3", cwd=ROOT, env=env)
-
-
-@pytest.mark.parametrize("layer", ["default", "workqueue"])
-def test_the_parallel_kernels_on_degenerate_shapes_whatever_the_threads(layer, snippets):
-    out = snippets[("kernels", layer)].result()
+    out = run_python(_KERNELS, "1", "2", "3", cwd=ROOT, env=env)
     assert out.returncode == 0, out.stderr[-3000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["layer"] == ("omp" if layer == "default" else layer)
@@ -270,64 +261,32 @@ print(json.dumps({"layer": numba.threading_layer(), "before": before, "after": s
 '''
 
 
-#: the command line's settings (environment, layer, frames in flight, whether a frame worker holds the lock)
-DEFAULTS = [
+@pytest.mark.parametrize(("env", "layer", "in_flight", "holds_lock"), [
     ({"NUMBA_NUM_THREADS": "2"}, "omp", 2, False),
     ({"NUMBA_NUM_THREADS": "1"}, "omp", 1, False),  # a study worker's share of one core
     ({"NUMBA_NUM_THREADS": "2", "NUMBA_THREADING_LAYER": "workqueue"}, "workqueue", 1, True),
     ({"NUMBA_NUM_THREADS": "2", "NUMBA_THREADING_LAYER_PRIORITY": "workqueue omp tbb"}, "workqueue", 1, True),
     ({"NUMBA_NUM_THREADS": "2", "ZCUT_FRAMES_IN_FLIGHT": "3"}, "omp", 3, False),
-]
-
-
-def _defaults_run(env: dict[str, str]) -> subprocess.CompletedProcess[str]:
+])
+def test_the_command_lines_layer_and_frames_in_flight(env, layer, in_flight, holds_lock):
     full = {k: v for k, v in os.environ.items()
             if not k.startswith(("NUMBA_THREADING", "NUMBA_NUM_THREADS", "ZCUT_FRAMES_IN_FLIGHT"))}
     full.update(PYTHONPATH=str(ROOT), **env)
-    return run_python(_DEFAULTS, cwd=ROOT, env=full)
-
-
-@pytest.mark.parametrize(("env", "layer", "in_flight", "holds_lock"), DEFAULTS)
-def test_the_command_lines_layer_and_frames_in_flight(env, layer, in_flight, holds_lock, snippets):
-    out = snippets[("defaults", json.dumps(env, sort_keys=True))].result()
+    out = run_python(_DEFAULTS, cwd=ROOT, env=full)
     assert out.returncode == 0, out.stderr[-3000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got == {"layer": layer, "before": min(in_flight, 2), "after": in_flight, "holds_lock": holds_lock}
 
 
-#: the OpenMP settings a user gave, and what ``configure_process`` leaves (wait policy, spin count, layer priority)
-SPIN = [({}, ["PASSIVE", "0", "omp workqueue tbb"]),
-        ({"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "10", "NUMBA_THREADING_LAYER": "workqueue"},
-         ["ACTIVE", "10", "-"])]
-
-
-def _spin_run(given: dict[str, str]) -> subprocess.CompletedProcess[str]:
+@pytest.mark.parametrize(("given", "expected"), [({}, ["PASSIVE", "0", "omp workqueue tbb"]),
+                                                 ({"OMP_WAIT_POLICY": "ACTIVE", "GOMP_SPINCOUNT": "10",
+                                                   "NUMBA_THREADING_LAYER": "workqueue"}, ["ACTIVE", "10", "-"])])
+def test_openmp_workers_do_not_spin_unless_the_user_says(given, expected):
     env = {k: v for k, v in os.environ.items()
            if not k.startswith(("NUMBA_THREADING", "OMP_WAIT_POLICY", "GOMP_SPINCOUNT"))}
     env.update(PYTHONPATH=str(ROOT), **given)
     code = ("import os\nfrom replay.process import configure_process\nconfigure_process()\n"
             "print('|'.join(os.environ.get(n, '-') for n in ('OMP_WAIT_POLICY', 'GOMP_SPINCOUNT',"
             " 'NUMBA_THREADING_LAYER_PRIORITY')))")
-    return run_python(code, cwd=ROOT, env=env)
-
-
-@pytest.mark.parametrize(("given", "expected"), SPIN)
-def test_openmp_workers_do_not_spin_unless_the_user_says(given, expected, snippets):
-    out = snippets[("spin", json.dumps(given, sort_keys=True))].result()
-    assert out.returncode == 0, out.stderr[-3000:]
+    out = run_python(code, cwd=ROOT, env=env, check=True)
     assert out.stdout.strip().split("|") == expected
-
-
-@pytest.fixture(scope="module")
-def snippets() -> Iterator[dict[tuple[str, str], Future[subprocess.CompletedProcess[str]]]]:
-    """The subprocesses of the three tests above (one per case; each sets itself up from its start), two at a
-    time, all started at the first of those tests: case -> its process's future. The ones not yet started
-    when the module ends are cancelled."""
-    with ThreadPoolExecutor(max_workers=2) as pool:
-        out = {("kernels", layer): pool.submit(_kernels_run, layer) for layer in ("default", "workqueue")}
-        out.update({("defaults", json.dumps(env, sort_keys=True)): pool.submit(_defaults_run, env)
-                    for env, *_ in DEFAULTS})
-        out.update({("spin", json.dumps(given, sort_keys=True)): pool.submit(_spin_run, given) for given, _ in SPIN})
-        yield out
-        for f in out.values():
-            f.cancel()
