@@ -46,6 +46,7 @@ def groups() -> list[tuple[str, Callable[[Path], None]]]:
         out.append((f"the filter bank and the suspects ({', '.join(m.name for m in rest)})", bank))
     out += [("the synthetic scenes, the readers and the whole pipeline", _pipeline),
             ("the removal of a float64 cloud and of a bin seen from the side", _removal_inputs),
+            ("SOR with k = 6 (its windows' eight slots)", _sor_eight),
             ("the labelling page: the part model's fits (`explained`) and the page's suspects", _labelling),
             ("the ray-traced sensor", _raytraced)]
     return out
@@ -95,6 +96,21 @@ def _removal_inputs(d: Path) -> None:
         rem = remove_table_and_bin(xyz, located.bin_mask.mask, index=prepared.removal, T_cam_bin=pose,
                                    ring=located.ring)
         assert rem.xyz.shape == xyz.shape  # the floored cloud is made when it is first read
+
+
+def _sor_eight(d: Path) -> None:
+    """SOR's window kernels keep the nearest distances in a tuple of four slots for a small k (the default 4,
+    which the SOR group compiles) and of eight for a larger one (``zcut.sor_window``): ``[sor] k = 6`` in a
+    config or ``--sor-k 6`` compiled them in the user's first replay (tests/cli/test_replay_cli.py's config
+    test: 22.6 s, 2026-12-07). The SOR group's clouds again with k = 6, in both conventions."""
+    from replay.pipeline.methods import _tiny
+    from zcut.sor import sor_outliers
+
+    _, xyz, scattered = _tiny()
+    for convention in ("pcl", "open3d"):
+        sor_outliers(xyz, k=6, convention=convention)
+        sor_outliers(xyz.astype(np.float64) * [1, 1, -1], k=6, convention=convention)
+        sor_outliers(scattered, k=6, convention=convention)
 
 
 def _labelling(d: Path) -> None:
