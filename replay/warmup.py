@@ -6,7 +6,7 @@ five other jobs, load average 10). One line per kernel group says what is being 
 long it took. This runs every kernel once on tiny inputs: each method's own warm-up, as its registry
 entry declares it (:attr:`replay.pipeline.methods.Method.warmup`: the z-cut's kernels, SOR in both
 conventions, the filter bank, the suspect detectors of the labelling page), a small synthetic log with its bin model through the whole pipeline (the
-scene generator and the readers too), the labelling page's part fits and review groups, and the ray-traced sensor (``zcut synth --sensor raytraced``).
+scene generator and the readers too), the removal of a float64 cloud and of a bin seen from the side, the labelling page's part fits and review groups, and the ray-traced sensor (``zcut synth --sensor raytraced``).
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ import numpy as np
 
 def groups() -> list[tuple[str, Callable[[Path], None]]]:
     """(what, compile it) per line of the warm-up: the paper's z-cut and SOR a line each, the other
-    methods of the registry together (each runs its own entry's warm-up), then the whole pipeline
-    and the ray-traced sensor."""
+    methods of the registry together (each runs its own entry's warm-up), then the whole pipeline, the
+    removal's other inputs, the labelling page and the ray-traced sensor."""
     from replay.pipeline.methods import DEFAULT_METHODS, registry
 
     known = registry()
@@ -45,6 +45,8 @@ def groups() -> list[tuple[str, Callable[[Path], None]]]:
 
         out.append((f"the filter bank and the suspects ({', '.join(m.name for m in rest)})", bank))
     out += [("the synthetic scenes, the readers and the whole pipeline", _pipeline),
+            ("the removal of a float64 cloud and of a bin seen from the side", _removal_inputs),
+            ("SOR with k = 6 (its windows' eight slots)", _sor_eight),
             ("the labelling page: the part model's fits (`explained`) and the page's suspects", _labelling),
             ("the ray-traced sensor", _raytraced)]
     return out
@@ -62,6 +64,53 @@ def _pipeline(d: Path) -> None:
     model, _ = build_bin_model(LogReader(empty).frames())
     for bm in (model, None):
         ReplaySession.open(log, bin_model=bm).run()
+
+
+def _removal_inputs(d: Path) -> None:
+    """The removal's kernels for the inputs the pipeline does not give it (the replay's clouds are float32 and
+    its bins seen from above): a float64 cloud (its classes and stragglers) and a bin seen from the side (no
+    floor plane: the classes' codes, then the heights), and their floored clouds. Library callers may pass
+    either, and the tests do: tests/zcut/test_removal.py compiled them for 36 s and 16 s (2026-12-07)."""
+    from replay.logs.reader import LogReader
+    from replay.pipeline.bin_model import build_bin_model
+    from replay.pipeline.session import ReplaySession
+    from replay.pipeline.stages import locate_bin
+    from replay.synth.log import write_synthetic_log
+    from zcut.prepared_model import prepare_bin_model
+    from zcut.removal import remove_table_and_bin
+
+    log, empty = d / "removal.mcap", d / "removal_empty.mcap"
+    write_synthetic_log(log, kind="rods", frames=1, seed=1, size=(60, 96))
+    write_synthetic_log(empty, empty=True, frames=2, seed=1, size=(60, 96))
+    model, _ = build_bin_model(LogReader(empty).frames())
+    config = ReplaySession.open(log, bin_model=model).config
+    prepared = prepare_bin_model(model, registration=config.registration, removal=config.removal)
+    frame = next(iter(LogReader(log).frames()))
+    located = locate_bin(frame, config, bin_model=prepared)
+    if located.bin_mask is None or located.registration is None:
+        raise RuntimeError(f"warm-up: the bin was not located in its own synthetic log ({located.failure})")
+    T = np.asarray(located.registration.T_cam_bin, np.float64)
+    side = T.copy()
+    side[:3, :3] = [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]  # the bin's up along the image's x axis
+    for xyz, pose in ((np.ascontiguousarray(frame.xyz, np.float64), T), (frame.xyz, side)):
+        rem = remove_table_and_bin(xyz, located.bin_mask.mask, index=prepared.removal, T_cam_bin=pose,
+                                   ring=located.ring)
+        assert rem.xyz.shape == xyz.shape  # the floored cloud is made when it is first read
+
+
+def _sor_eight(d: Path) -> None:
+    """SOR's window kernels keep the nearest distances in a tuple of four slots for a small k (the default 4,
+    which the SOR group compiles) and of eight for a larger one (``zcut.sor_window``): ``[sor] k = 6`` in a
+    config or ``--sor-k 6`` compiled them in the user's first replay (tests/cli/test_replay_cli.py's config
+    test: 22.6 s, 2026-12-07). The SOR group's clouds again with k = 6, in both conventions."""
+    from replay.pipeline.methods import _tiny
+    from zcut.sor import sor_outliers
+
+    _, xyz, scattered = _tiny()
+    for convention in ("pcl", "open3d"):
+        sor_outliers(xyz, k=6, convention=convention)
+        sor_outliers(xyz.astype(np.float64) * [1, 1, -1], k=6, convention=convention)
+        sor_outliers(scattered, k=6, convention=convention)
 
 
 def _labelling(d: Path) -> None:
