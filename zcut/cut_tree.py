@@ -1643,6 +1643,27 @@ def cuts_window(seg_max, thr, W):  # type: ignore[no-untyped-def]  # numba kerne
 
 
 @numba.njit(cache=True, nogil=True)
+def gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, wr, wc, wh, ww, bound,  # type: ignore[no-untyped-def]  # numba kernel
+                listed):
+    """The pixels of the small gentle components in the window (:func:`gentle_levels`, then :func:`gentle_prune`),
+    for :func:`pruned_outliers` and :func:`pruned_clusters`: (the flood's scratch ``st``, the level starts, the kept
+    pixels, their labels ``gl``). ``listed``: the labels kept in the order of the pixels (``gls``) — when at most half
+    the frame may be in the cuts (:func:`pruned_outliers` says why)."""
+    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
+    if listed:
+        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
+        start = np.zeros(top + 2, np.int64)
+        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
+    else:
+        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
+        start = np.zeros(top + 2, np.int64)
+        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
+    return st, start, pix[:keep], gl
+
+
+@numba.njit(cache=True, nogil=True)
 def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, out):  # type: ignore[no-untyped-def]  # numba kernel
     """The outlier mask of the flood over the pixels of the small gentle components only, into ``out``
     ((H * W,) bool, zeroed), in one call: the window of the pixels in the cuts (:func:`cuts_window`), the
@@ -1669,18 +1690,8 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     # anyway, and a frame-sized gls makes the block one that glibc maps anew at every call (page faults: the
     # dense frame 34 -> 48 ms); under half, the block stays below the largest one before gls (docs/performance.md)
     listed = some and 2 * bound <= H * W
-    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
-    if listed:
-        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
-        start = np.zeros(top + 2, np.int64)
-        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
-    else:
-        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
-        start = np.zeros(top + 2, np.int64)
-        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
-    kept = pix[:keep]
+    st, start, kept, gl = gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check,
+                                      wr, wc, wh, ww, bound, listed)
     # the labels are read; the flood writes its node image over them at the kept pixels
     _, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
     pruned_outlier_mask(z, gl, kept, fin, node_parent, tagged, out, wr, wc, ww)
@@ -1743,18 +1754,8 @@ def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
             return False, empty, empty
         bound = min(bound, wh * ww)
     listed = some and 2 * bound <= H * W
-    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
-    if listed:
-        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
-        start = np.zeros(top + 2, np.int64)
-        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
-    else:
-        m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
-        start = np.zeros(top + 2, np.int64)
-        keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
-    kept = pix[:keep]
+    st, start, kept, gl = gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check,
+                                      wr, wc, wh, ww, bound, listed)
     node_b, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
     tops, areas = pruned_cluster_labels(z, gl, kept, fin, node_parent, tagged, labels, wr, wc, ww)
     levels = np.empty(tops.size, np.int64)
