@@ -864,6 +864,18 @@ def pipeline_options() -> Any:
     return PipelineOptions(methods="zcut,explained", config=None if CONFIG is None else str(CONFIG))
 
 
+def sliver_input(ff: Any, zone: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """The sliver pass's input on a frame's fits ``ff``: the unexplained pixels of ``zone`` ((H, W) bool) with the
+    sliver fits' own pixels put back (the pass ran on them before they joined the fits); and those fits' indices."""
+    H, W = zone.shape
+    un = np.zeros(H * W, bool)
+    un[ff.un_pix] = True
+    sliver_ids = [i for i, f in enumerate(ff.fits) if f.get("sliver")]
+    if sliver_ids:
+        un[ff.fit_pix[np.isin(ff.fit_of, sliver_ids)]] = True
+    return un.reshape(H, W) & zone, sliver_ids
+
+
 def frame_arrays(frame, job) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # type: ignore[no-untyped-def]
     """(valid (H, W) bool, xyz (H, W, 3) mm float64, heights (H, W) mm) of a frame as the page's fits read them."""
     valid = np.asarray(job.valid, bool)

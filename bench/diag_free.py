@@ -158,12 +158,7 @@ def frame_rows(log: Path, frame: Any, job: Any, ff: Any, *, min_share: float, co
     sigma = float(np.median(sig))
     k, floor = float(ff.k), float(ff.floor_mm)
     poses = np.stack([np.asarray(f["pose"], np.float64) for f in ff.fits if not f.get("sliver")])
-    un = np.zeros(H * W, bool)
-    un[ff.un_pix] = True
-    sliver_ids = [i for i, f in enumerate(ff.fits) if f.get("sliver")]
-    if sliver_ids:
-        un[ff.fit_pix[np.isin(ff.fit_of, sliver_ids)]] = True
-    un = un.reshape(H, W) & zone
+    un, _ = B.sliver_input(ff, zone)
     base = SliverParams(min_px=1, max_px=10 ** 9, max_regions=1, coarse=pe.SLIVER_COARSE, refine=pe.SLIVER_REFINE,
                         max_see_through=1.0)
     rows = []

@@ -160,13 +160,7 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True
     visible = served & (tcode >= 0) & (tdist <= VISIBLE_MM)
     vis_n = np.bincount(inst[visible], minlength=n_inst + 1)[:n_inst]
     exc_n = np.bincount(inst[non & (tcode >= 0)], minlength=n_inst + 1)[:n_inst]
-    # the sliver pass's input: the unexplained zone pixels, the sliver fits' pixels put back
-    un = np.zeros(H * W, bool)
-    un[ff.un_pix] = True
-    sliver_ids = [i for i, f in enumerate(ff.fits) if f.get("sliver")]
-    if sliver_ids:
-        un[ff.fit_pix[np.isin(ff.fit_of, sliver_ids)]] = True
-    un = un.reshape(H, W) & zone
+    un, sliver_ids = B.sliver_input(ff, zone)
     lab, nreg = ndimage.label(un, structure=np.ones((3, 3), bool))
     sizes = np.bincount(lab.ravel(), minlength=nreg + 1)
     elig = np.flatnonzero((sizes >= pe.SLIVER_MIN_PX) & (sizes <= 2000))
