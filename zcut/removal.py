@@ -713,58 +713,53 @@ def _classify_finish(a, fp, R, t, easy_above, test_bin, bin_first, origin, cell,
                      ijk, busy, box, delta, radius, planes, floor, up, code, table, easy, binp, zone, height):  # pragma: no cover - numba
     """:func:`_classify_codes` and :func:`_finish_codes` (the floor a plane) in one pass over the frame: each pixel's
     class code, its four class masks and its height as :func:`_finish_codes` writes them from that code, while the
-    row is at hand (the frame is read once, not twice: 27.6 MB at 1920 x 1200). Returns the zone's highest
+    pixel's point is at hand (the frame is read once, not twice: 27.6 MB at 1920 x 1200). Returns the zone's highest
     height row by row, ``(seen, nan, top)``, as :func:`_finish_codes` does. The straggler test then labels a few
-    open pixels bin: :func:`_relabel_bin` moves them out of the zone.
-
-    Each row in two loops: the class codes (a branch per pixel, the model searched), then the masks and heights
-    from the codes without a branch (every pixel's floor and own height computed, one kept; NaN where invalid), which
-    vectorize. The zone's pixels are finite, so their heights are never NaN (``nan`` stays False); its top is the
-    first largest height in column order, as the one loop found it."""
+    open pixels bin: :func:`_relabel_bin` moves them out of the zone."""
     H, W = fp.shape
     seen = np.zeros(H, np.bool_)
     nan = np.zeros(H, np.bool_)
     top = np.full(H, -np.inf)
-    u0 = up[0]
-    u1 = up[1]
-    u2 = up[2]
     for r in numba.prange(H):
         hint = -1
-        cr = code[r]
+        m = -np.inf
         for c in range(W):
             if not (np.isfinite(a[r, c, 0]) and np.isfinite(a[r, c, 1]) and np.isfinite(a[r, c, 2])):
-                cr[c] = _INVALID
-            elif not fp[r, c]:
-                cr[c] = _TABLE
+                code[r, c] = _INVALID
+                table[r, c] = False
+                easy[r, c] = False
+                binp[r, c] = False
+                zone[r, c] = False
+                height[r, c] = np.nan
+                continue
+            if not fp[r, c]:
+                code[r, c] = _TABLE
+                table[r, c] = True
+                easy[r, c] = False
+                binp[r, c] = False
+                zone[r, c] = False
+                zf = (floor - np.float64(a[r, c, 0]) * up[0] - np.float64(a[r, c, 1]) * up[1]) / up[2]
+                height[r, c] = -1000.0 * zf
+                continue
+            px, py, pz = _to_bin(a, r, c, R, t)
+            k, hint = _class_of(px, py, pz, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm, off,
+                                ijk, busy, box, delta, radius, planes, hint)
+            code[r, c] = k
+            table[r, c] = False
+            easy[r, c] = k == _EASY
+            binp[r, c] = k == _BIN
+            zone[r, c] = k == _OPEN
+            if k == _OPEN:
+                v = -1000.0 * np.float64(a[r, c, 2])
+                height[r, c] = v
+                seen[r] = True
+                if np.isnan(v):
+                    nan[r] = True
+                elif v > m:
+                    m = v
             else:
-                px, py, pz = _to_bin(a, r, c, R, t)
-                k, hint = _class_of(px, py, pz, easy_above, test_bin, bin_first, origin, cell, dims, start, pts, nrm,
-                                    off, ijk, busy, box, delta, radius, planes, hint)
-                cr[c] = k
-        tr = table[r]
-        er = easy[r]
-        br = binp[r]
-        zr = zone[r]
-        hr = height[r]
-        ar = a[r]
-        m = -np.inf
-        s = False
-        for c in range(W):
-            k = cr[c]
-            tr[c] = k == _TABLE
-            er[c] = k == _EASY
-            br[c] = k == _BIN
-            o = k == _OPEN
-            zr[c] = o
-            x = np.float64(ar[c, 0])
-            y = np.float64(ar[c, 1])
-            v = -1000.0 * np.float64(ar[c, 2])
-            hf = -1000.0 * ((floor - x * u0 - y * u1) / u2)
-            h = v if o else hf
-            hr[c] = np.nan if k == _INVALID else h
-            s |= o
-            m = v if (o and v > m) else m
-        seen[r] = s
+                zf = (floor - np.float64(a[r, c, 0]) * up[0] - np.float64(a[r, c, 1]) * up[1]) / up[2]
+                height[r, c] = -1000.0 * zf
         top[r] = m
     return seen, nan, top
 
