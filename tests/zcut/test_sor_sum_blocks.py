@@ -63,3 +63,56 @@ def test_sums_on_a_frame_with_no_valid_block_but_one(open3d: bool) -> None:
     got = np.array(sor_module._mean_std(dbar, valid, n, open3d))
     want = _literal(dbar, valid, n, open3d)
     assert np.array_equal(got.view(np.uint64), want.view(np.uint64)), (got, want)
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 5, 16, 17, 100])
+def test_workers_run_every_chunk_once(n: int) -> None:
+    # SOR's runner: one task a pool thread, each taking chunks from a shared counter (h/fps4): the chunks
+    # the pool's queue ran before (``n * i // n_chunks`` edges, the empty ones left out), each once
+    import threading
+
+    import numba
+
+    from zcut.sor_workspace import SorWorkspace
+
+    ws = SorWorkspace(max_bytes=0)
+    got: list[tuple[int, int, str]] = []
+    lock = threading.Lock()
+
+    def kernel(i0: int, i1: int, tag: str) -> None:
+        with lock:
+            got.append((i0, i1, tag))
+
+    try:
+        with sor_module._workers(ws) as run:
+            run(kernel, n, "a")
+    finally:
+        ws.release()
+    threads = int(numba.config.NUMBA_NUM_THREADS)
+    if threads <= 1:
+        assert got == ([(0, n, "a")] if n else [])
+        return
+    k = min(n, 8 * threads)
+    edges = [n * i // k for i in range(k + 1)] if n else []
+    want = [(i0, i1, "a") for i0, i1 in zip(edges, edges[1:]) if i1 > i0]
+    assert sorted(got) == want
+
+
+def test_workers_raise_a_kernels_error_after_every_task_ended() -> None:
+    import numba
+
+    from zcut.sor_workspace import SorWorkspace
+
+    if int(numba.config.NUMBA_NUM_THREADS) <= 1:
+        pytest.skip("one thread: the kernel runs in the caller")
+    ws = SorWorkspace(max_bytes=0)
+
+    def kernel(i0: int, i1: int) -> None:
+        if i0 == 0:
+            raise ValueError("chunk 0")
+
+    try:
+        with sor_module._workers(ws) as run, pytest.raises(ValueError, match="chunk 0"):
+            run(kernel, 40)
+    finally:
+        ws.release()
