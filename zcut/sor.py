@@ -244,10 +244,7 @@ def _prepare(xyz: XYZ, run: Run, ws: SorWorkspace, mask: Mask | None = None) -> 
 def _workers(ws: SorWorkspace) -> Iterator[Run]:
     """``run(kernel, n, *args)`` calls ``kernel(i0, i1, *args)`` over chunks of range(n), on
     ``numba.config.NUMBA_NUM_THREADS`` threads (the cores, or the NUMBA_NUM_THREADS variable): the
-    pool the workspace ``ws`` keeps from call to call. One task a thread, which takes the chunks one
-    after the other from a shared counter (the same chunks, each once; a task of the pool costs a
-    future, a queue and a wake-up: 16 of them a call were ~2.5 CPU ms of a 1920 x 1200 frame's 4 calls,
-    h/fps4).
+    pool the workspace ``ws`` keeps from call to call.
 
     The kernels are serial numba functions that release the GIL: numba's own ``parallel=True``
     compiled this module several times slower, and not starting numba's threading layer leaves
@@ -262,16 +259,7 @@ def _workers(ws: SorWorkspace) -> Iterator[Run]:
     def run(kernel: Callable[..., None], n: int, *args: object) -> None:
         n_chunks = min(n, 8 * n_threads)
         edges = [n * i // n_chunks for i in range(n_chunks + 1)] if n else []
-        chunks = [(i0, i1) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
-        order = itertools.count()  # the next chunk (CPython's count hands each number out once, under the GIL)
-
-        def take() -> None:  # one pool thread: chunk after chunk, as the pool's queue handed them out before
-            for i in order:
-                if i >= len(chunks):
-                    return
-                kernel(*chunks[i], *args)
-
-        jobs = [pool.submit(take) for _ in range(min(n_threads, len(chunks)))]
+        jobs = [pool.submit(kernel, i0, i1, *args) for i0, i1 in itertools.pairwise(edges) if i1 > i0]
         wait(jobs)  # all of them, even when one fails: none may write into the workspace after the call
         for job in jobs:
             job.result()
