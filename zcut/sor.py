@@ -443,79 +443,51 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
 # --------------------------------------------------------------------------------------------
 # statistics
 # --------------------------------------------------------------------------------------------
-#: :func:`_mean_std` adds a row's terms in blocks of this many pixels, passing by the blocks with no valid pixel
-_SUM_BLOCK = 16
-
-
 @nb.njit(cache=True, inline="always")
-def _term(d, v, open3d):  # type: ignore[no-untyped-def]  # numba kernel
-    # what a pixel of d̄ ``d`` (valid: ``v``) adds to the sum of d̄: d̄ where it is summed, +0.0 elsewhere (a
+def _row_terms(dbar, valid, open3d, r, row):  # type: ignore[no-untyped-def]  # numba kernel
+    # row[c] := what pixel (r, c) adds to the sum of d̄: d̄ where it is summed, +0.0 elsewhere (a
     # select the compiler vectorizes: no branch, no arithmetic on what invalid pixels hold)
-    return d if v & ((not open3d) | (d > 0.0)) else 0.0
+    for c in range(valid.shape[1]):
+        d = dbar[r, c]
+        row[c] = d if valid[r, c] & ((not open3d) | (d > 0.0)) else 0.0
 
 
 @nb.njit(cache=True, inline="always")
-def _deviation(d, v, open3d, mean):  # type: ignore[no-untyped-def]  # numba kernel
-    # what it adds to the sum of squared deviations: (d̄ - mean)² where it is summed, +0.0 elsewhere
-    # (selected after the arithmetic: with a mean of inf, (mean - mean)² is NaN)
-    summed = v & ((not open3d) | (d > 0.0))
-    t = d if summed else mean
-    e = (t - mean) * (t - mean)
-    return e if summed else 0.0
+def _row_deviations(dbar, valid, open3d, r, mean, row):  # type: ignore[no-untyped-def]  # numba kernel
+    # row[c] := what pixel (r, c) adds to the sum of squared deviations: (d̄ - mean)² where it is
+    # summed, +0.0 elsewhere (selected after the arithmetic: with a mean of inf, (mean - mean)² is NaN)
+    for c in range(valid.shape[1]):
+        d = dbar[r, c]
+        summed = valid[r, c] & ((not open3d) | (d > 0.0))
+        t = d if summed else mean
+        v = (t - mean) * (t - mean)
+        row[c] = v if summed else 0.0
 
 
 @nb.njit(cache=True)
 def _mean_std(dbar, valid, n, open3d):  # type: ignore[no-untyped-def]  # numba kernel
     # mean and std of the statistics (see _outlier_masks): each sum one accumulator over the summed
-    # values in row-major order. A block's terms are made first (:func:`_term`, :func:`_deviation`: a
-    # vectorized select, +0.0 where a pixel is not summed), then added one by one, every pixel's: an
-    # accumulator starts at +0.0 and a sum is -0.0 only when both operands are, so it is never -0.0,
-    # and acc + 0.0 is acc exactly (NaN and inf included). So the sums are those of adding only the
-    # summed values, in the same order, bit for bit. (Adding d̄ if summed else 0.0 in one loop
-    # compiles to a branch per pixel, which valid pixels at random mispredict; gathering each row's
-    # summed values to the front of a buffer, what this did before the round of 2026-12-05, made each
-    # pass ~3 times slower once the frame is out of the cache.) The terms come in blocks of
-    # _SUM_BLOCK pixels (fixed-length loops, unrolled): a block none of whose pixels is valid adds only
-    # +0.0 and is passed by (one branch a block; its d̄ not read). SOR's top region fills 2-22 % of its
-    # box on a 1920 x 1200 zinc-nut frame, 4-35 % of the blocks: the adds, one after the other, were
-    # the cost (h/fps4: each pass ~3 x faster there).
+    # values in row-major order. A row's terms are made first (:func:`_row_terms`,
+    # :func:`_row_deviations`: a vectorized select, +0.0 where a pixel is not summed), then added
+    # one by one, every pixel's: an accumulator starts at +0.0 and a sum is -0.0 only when both
+    # operands are, so it is never -0.0, and acc + 0.0 is acc exactly (NaN and inf included). So
+    # the sums are those of adding only the summed values, in the same order, bit for bit. (Adding
+    # d̄ if summed else 0.0 in one loop compiles to a branch per pixel, which valid pixels at random
+    # mispredict; gathering each row's summed values to the front of a buffer, what this did before,
+    # made each pass ~3 times slower once the frame is out of the cache.)
     H, W = valid.shape
-    B = _SUM_BLOCK
-    nb_ = W // B
-    row = np.empty(B)
+    row = np.empty(W)
     s = 0.0
     for r in range(H):
-        vr = valid[r]
-        dr = dbar[r]
-        for b in range(nb_):
-            c0 = b * B
-            any_ = False
-            for c in range(B):
-                any_ |= vr[c0 + c]
-            if any_:
-                for c in range(B):
-                    row[c] = _term(dr[c0 + c], vr[c0 + c], open3d)
-                for c in range(B):
-                    s = s + row[c]
-        for c in range(nb_ * B, W):
-            s = s + _term(dr[c], vr[c], open3d)
+        _row_terms(dbar, valid, open3d, r, row)
+        for c in range(W):
+            s = s + row[c]
     mean = s / n
     sq = 0.0
     for r in range(H):
-        vr = valid[r]
-        dr = dbar[r]
-        for b in range(nb_):
-            c0 = b * B
-            any_ = False
-            for c in range(B):
-                any_ |= vr[c0 + c]
-            if any_:
-                for c in range(B):
-                    row[c] = _deviation(dr[c0 + c], vr[c0 + c], open3d, mean)
-                for c in range(B):
-                    sq = sq + row[c]
-        for c in range(nb_ * B, W):
-            sq = sq + _deviation(dr[c], vr[c], open3d, mean)
+        _row_deviations(dbar, valid, open3d, r, mean, row)
+        for c in range(W):
+            sq = sq + row[c]
     return mean, math.sqrt(sq / (n - 1))
 
 
