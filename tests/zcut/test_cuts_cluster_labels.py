@@ -179,3 +179,43 @@ def test_the_suspects_call_itself() -> None:
         assert whole(hz, p)
         check_all(hz, p, reference=False)
         assert same_clusters(hz, p) > 0
+
+
+def test_scratch_kept_between_calls() -> None:
+    """The scratch of cluster_labels_of is a block of the thread's workspace (zcut.cuts.cut_workspace), kept between
+    calls: filled with garbage before each call (the pruned flood's frame and the deep cut's whole flood, a larger
+    frame then smaller ones), the same clusters, areas and levels as find_clusters'; the same block every call; no
+    array returned shares its memory; a re-entrant call (the workspace in use) works in fresh arrays."""
+    from zcut.cuts import cut_workspace
+
+    rng = np.random.default_rng(4600)
+    big = bumpy(rng, 90, 160, 0.2)
+    big[10:30, 40:90] = np.nan
+    small = terraces(rng, 30, 70, 0.25)
+    deep = bumpy(rng, 40, 90, 0.2)
+    deep[0, 0] = deep[np.isfinite(deep)].min() - 5000 * 0.2  # beyond SHALLOW_LEVELS: the whole flood
+    frames = [(big, whole_range(big, 0.2, 60.0)), (small, whole_range(small, 0.25, 17.0)),
+              (deep, whole_range(deep, 0.2, 40.0)), (small, whole_range(small, 0.25, 400.0))]
+    cut_workspace().release()
+    address = None
+    for z, p in frames:
+        want = find_clusters(z, params=p)
+        held = cut_workspace()._arrays.get("cut_block")
+        if held is not None:
+            held.fill(0xA5)  # garbage where the scratch is read before it is written, if it were
+            address = address or held.ctypes.data
+            assert held.ctypes.data == address  # the same block (the first frame's is the largest)
+        got = cluster_labels_of(z, params=p)
+        block = cut_workspace()._arrays["cut_block"]
+        for name, g, e in zip(("clusters", "areas", "levels"), got, (want.clusters, want.areas, want.levels),
+                              strict=True):
+            np.testing.assert_array_equal(g, e, err_msg=name)
+            assert not np.shares_memory(g, block), name
+    assert address is not None
+    with cut_workspace().call():  # in use: the call works in fresh arrays, the kept block untouched
+        before = cut_workspace()._arrays["cut_block"].copy()
+        got = cluster_labels_of(big, params=frames[0][1])
+        np.testing.assert_array_equal(got[0], find_clusters(big, params=frames[0][1]).clusters)
+        np.testing.assert_array_equal(cut_workspace()._arrays["cut_block"], before)
+    cut_workspace().release()
+    assert cut_workspace().nbytes == 0
