@@ -76,8 +76,6 @@ __all__ = [
     "pruned_outlier_mask",
     "pruned_outliers",
     "pruned_scratch",
-    "pruned_scratch_bytes",
-    "pruned_scratch_in",
     "qlevel",
     "segments_in_cuts",
     "taggable_forest",
@@ -1616,28 +1614,12 @@ def pruned_scratch(n, bound, n_gls):  # type: ignore[no-untyped-def]  # numba ke
     freed, so that a call's scratch, freed, stays in the heap for the next call instead of going back to
     the system to be faulted in again page by page (the pile: ~690 faults a call, ~1.5 µs each, with five
     arrays; none with one block; docs/performance.md)."""
-    return pruned_scratch_in(np.empty(0, np.uint8), n, bound, n_gls)
-
-
-@numba.njit(cache=True, nogil=True)
-def pruned_scratch_bytes(n, bound, n_gls):  # type: ignore[no-untyped-def]  # numba kernel
-    """The bytes of :func:`pruned_scratch`'s block for these sizes."""
-    return max(_aligned(4 * n) + 3 * _aligned(4 * bound) + _aligned(4 * n_gls) + _aligned(2 * n), 1)
-
-
-@numba.njit(cache=True, nogil=True)
-def pruned_scratch_in(block, n, bound, n_gls):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`pruned_scratch`'s views, of ``block`` ((k,) uint8, uninitialized, k at least
-    :func:`pruned_scratch_bytes`: a caller's block kept between calls, whose pages are not faulted in again
-    at every call as a block of more than glibc's largest mmap threshold (32 MiB) is), else of a fresh block.
-    The same layout either way; the arrays are uninitialized either way."""
     a_pix = _aligned(4 * n)
     a_par = a_pix + _aligned(4 * bound)
     a_cnt = a_par + _aligned(4 * bound)
     a_gls = a_cnt + _aligned(4 * bound)
     a_st = a_gls + _aligned(4 * n_gls)
-    if block.size < a_st + _aligned(2 * n):
-        block = np.empty(max(a_st + _aligned(2 * n), 1), np.uint8)
+    block = np.empty(max(a_st + _aligned(2 * n), 1), np.uint8)
     gl = block[:4 * n].view(np.int32)
     pix = block[a_pix:a_pix + 4 * bound].view(np.int32)
     gpar = block[a_par:a_par + 4 * bound].view(np.int32)
@@ -1662,13 +1644,12 @@ def cuts_window(seg_max, thr, W):  # type: ignore[no-untyped-def]  # numba kerne
 
 @numba.njit(cache=True, nogil=True)
 def gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, wr, wc, wh, ww, bound,  # type: ignore[no-untyped-def]  # numba kernel
-                listed, block):
+                listed):
     """The pixels of the small gentle components in the window (:func:`gentle_levels`, then :func:`gentle_prune`),
     for :func:`pruned_outliers` and :func:`pruned_clusters`: (the flood's scratch ``st``, the level starts, the kept
     pixels, their labels ``gl``). ``listed``: the labels kept in the order of the pixels (``gls``) — when at most half
-    the frame may be in the cuts (:func:`pruned_outliers` says why). ``block``: the scratch's memory when large
-    enough (:func:`pruned_scratch_in`; a zero-size one: a fresh block)."""
-    st, gl, pix, gpar, gcnt, gls = pruned_scratch_in(block, (wh + 2) * (ww + 2), bound, bound if listed else 0)
+    the frame may be in the cuts (:func:`pruned_outliers` says why)."""
+    st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
     if listed:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
                                         st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
@@ -1710,7 +1691,7 @@ def pruned_outliers(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
     # dense frame 34 -> 48 ms); under half, the block stays below the largest one before gls (docs/performance.md)
     listed = some and 2 * bound <= H * W
     st, start, kept, gl = gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check,
-                                      wr, wc, wh, ww, bound, listed, np.empty(0, np.uint8))
+                                      wr, wc, wh, ww, bound, listed)
     # the labels are read; the flood writes its node image over them at the kept pixels
     _, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
     pruned_outlier_mask(z, gl, kept, fin, node_parent, tagged, out, wr, wc, ww)
@@ -1754,16 +1735,12 @@ def pruned_cluster_labels(z, lab, pix, fin, node_parent, tagged, labels, wr=0, w
 
 
 @numba.njit(cache=True, nogil=True)
-def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, labels,  # type: ignore[no-untyped-def]  # numba kernel
-                    block):
+def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, labels):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`pruned_outliers` with :func:`pruned_cluster_labels` as its read-out: the cluster labels of
     :func:`zcut.cuts.find_clusters` into ``labels`` ((H * W,) int32, zeroed), from the flood over the pixels of
     the small gentle components only (the tagged nodes, as pixel sets, are the whole tree's: :func:`gentle_prune`;
     so are the outermost ones, and their numbers, by their first valid pixel in raster order). Returns (applied,
-    the clusters' areas, their levels ``max(b, 1)``); not applied: nothing written (as :func:`pruned_outliers`).
-    ``block``: the scratch's memory (:func:`gentle_kept`), the caller's kept between calls (:func:`zcut.cuts.cluster_labels_of`:
-    the frame-sized block of a cut that holds every pixel, ~51 MB at 1920 × 1200, is otherwise mapped anew and
-    faulted in page by page at every call)."""
+    the clusters' areas, their levels ``max(b, 1)``); not applied: nothing written (as :func:`pruned_outliers`)."""
     H, W = z.shape
     empty = np.zeros(0, np.int64)
     thr = z_max - top * step
@@ -1778,7 +1755,7 @@ def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
         bound = min(bound, wh * ww)
     listed = some and 2 * bound <= H * W
     st, start, kept, gl = gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check,
-                                      wr, wc, wh, ww, bound, listed, block)
+                                      wr, wc, wh, ww, bound, listed)
     node_b, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
     tops, areas = pruned_cluster_labels(z, gl, kept, fin, node_parent, tagged, labels, wr, wc, ww)
     levels = np.empty(tops.size, np.int64)

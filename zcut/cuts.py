@@ -85,7 +85,6 @@ from __future__ import annotations
 
 import math
 import operator
-import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
@@ -114,14 +113,12 @@ from .cut_tree import (
     pruned_clusters,
     pruned_outliers,
     pruned_scratch,
-    pruned_scratch_bytes,
     qlevel,
     retag,
     union_find_tree,
 )
 from .errors import InputShapeError, ParameterError, describe_array
 from .params import _K_CAP, ZCutParams, n_levels
-from .sor_workspace import SorWorkspace
 from .types import FloatImage, Labels, Mask
 
 __all__ = [
@@ -367,39 +364,36 @@ class _Flood:
     fin: np.ndarray
 
 
-def _one_block(*parts: tuple[type, int], block: np.ndarray | None = None) -> list[np.ndarray]:
+def _one_block(*parts: tuple[type, int]) -> list[np.ndarray]:
     """Arrays of the given dtypes and lengths, in this order, as views of one block, each starting on a 64-byte
-    boundary: a call's scratch freed as one block stays in glibc's heap for the next call (:func:`_scratch`).
-    ``block``: a (k,) uint8 array to take them from when large enough (a caller's, kept between calls)."""
+    boundary: a call's scratch freed as one block stays in glibc's heap for the next call (:func:`_scratch`)."""
     sizes = [-(-np.dtype(t).itemsize * k // 64) * 64 for t, k in parts]
-    if block is None or block.size < max(sum(sizes), 1):
-        block = np.empty(max(sum(sizes), 1), np.uint8)
+    block = np.empty(max(sum(sizes), 1), np.uint8)
     ends = np.cumsum([0, *sizes])
     return [block[int(a):int(a) + np.dtype(t).itemsize * k].view(t) for (t, k), a in zip(parts, ends[:-1], strict=True)]
 
 
-def _flood_scratch(n: int, block: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _flood_scratch(n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """:func:`_flood`'s frame-sized arrays (``n`` padded pixels): ``st`` (n,) int16, ``pix``, ``own``,
-    ``lab`` (n,) int32, views of one block (:func:`_one_block`; of ``block`` when given and large enough). The
-    block lives as long as a view of it (the :class:`_Flood` keeps ``lab``, ``pix`` and ``own``)."""
-    pix, own, lab, st = _one_block((np.int32, n), (np.int32, n), (np.int32, n), (np.int16, n), block=block)
+    ``lab`` (n,) int32, views of one block (:func:`_one_block`). The block lives as long as a view of it (the
+    :class:`_Flood` keeps ``lab``, ``pix`` and ``own``)."""
+    pix, own, lab, st = _one_block((np.int32, n), (np.int32, n), (np.int32, n), (np.int16, n))
     return st, pix, own, lab
 
 
 def _flood(z: np.ndarray, seg_max: np.ndarray, z_min: float, z_max: float, step: float, K: int, max_area: float,
-           connectivity: int, pixel_level: np.ndarray | None = None, block: np.ndarray | None = None
-           ) -> _Flood | None:
+           connectivity: int, pixel_level: np.ndarray | None = None) -> _Flood | None:
     """The flood kernel's tree without the full-image passes of :func:`_tree` (no valid mask, no
     padded level image, no pass over the pixels outside the cuts but one comparison each): the
     same nodes, tags and closing order. None when it does not apply (too many levels or pixels:
     :func:`_tree` then). ``seg_max``: from :func:`_finite_range`. ``pixel_level``: (H, W) int16,
-    filled as :class:`CutResult` has it. ``block``: the frame-sized arrays' memory (:func:`_flood_scratch`)."""
+    filled as :class:`CutResult` has it."""
     k_eff, top = _levels(z_min, z_max, step, K)
     H, W = z.shape
     n = (H + 2) * (W + 2)
     if top >= FLOOD_MAX_LEVELS or n >= 2**31 - 1:
         return None
-    st, pix, own, lab = _flood_scratch(n, block)
+    st, pix, own, lab = _flood_scratch(n)
     start = np.zeros(top + 2, np.int64)
     want = pixel_level is not None
     levels = pixel_level if pixel_level is not None else np.empty((1, 1), np.int16)
@@ -588,37 +582,13 @@ def cluster_labels_of(height: FloatImage, *, params: ZCutParams) -> tuple[Labels
     deepest level, the pruned one the pixels of the gentle components smaller than ``max_area`` only
     (docs/performance.md, round 2026-12-07d).
     """
-    with cut_workspace().call() as ws:
-        return _cluster_labels(height, params, ws=ws)
+    return _cluster_labels(height, params)
 
 
-#: the scratch of :func:`cluster_labels_of` kept between calls, one workspace per thread (:func:`cut_workspace`)
-_CUT = threading.local()
-
-#: what a thread's :func:`cut_workspace` keeps between calls at most: the scratch block of a frame of up to
-#: ~5 M pixels (1920 × 1200: ~51 MB)
-CUT_KEPT_BYTES = 128 << 20
-
-
-def cut_workspace() -> SorWorkspace:
-    """The calling thread's workspace of :func:`cluster_labels_of`'s scratch (made on first use, dropped with the
-    thread; ``cut_workspace().release()`` frees it). The pruned flood's block of a cut that holds every pixel
-    (``zcut.cut_tree.pruned_scratch_in``, ~51 MB at 1920 × 1200) is larger than glibc's largest mmap threshold
-    (32 MiB): made fresh, it was mapped anew and faulted in page by page at every call (~5 k faults, 8-19 ms of
-    system time a 1920 × 1200 frame; docs/performance.md, round 2026-12-07f). A call that finds the workspace in
-    use (re-entry) works in fresh arrays."""
-    ws: SorWorkspace | None = getattr(_CUT, "workspace", None)
-    if ws is None:
-        ws = SorWorkspace(max_bytes=CUT_KEPT_BYTES)
-        _CUT.workspace = ws
-    return ws
-
-
-def _cluster_labels(height: FloatImage, params: ZCutParams, *, minimum: int = PRUNE_MIN, check: int | None = None,
-                    ws: SorWorkspace | None = None) -> tuple[Labels, np.ndarray, np.ndarray]:
+def _cluster_labels(height: FloatImage, params: ZCutParams, *, minimum: int = PRUNE_MIN, check: int | None = None
+                    ) -> tuple[Labels, np.ndarray, np.ndarray]:
     """:func:`cluster_labels_of`; ``minimum`` and ``check`` as :func:`_pruned_outliers`' (the tests force the
-    pruned flood on small frames with ``minimum=0``); ``ws``: the scratch's workspace (None: fresh arrays). No
-    array returned is one of the workspace's.
+    pruned flood on small frames with ``minimum=0``).
 
     **Every pixel in the cuts.** When the cut at the deepest level ``top`` holds every pixel (the lowest height's
     level ``q_min`` is at most ``top``: K >= q_min - 1), the clusters are those of ``K' = q_min - 2`` (when >= 1,
@@ -645,18 +615,13 @@ def _cluster_labels(height: FloatImage, params: ZCutParams, *, minimum: int = PR
             conn8 = connectivity == 8
             if check is None:
                 check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
-            n_pad, n_px = np.int64((H + 2) * (W + 2)), np.int64(H * W)
-            block = (np.empty(0, np.uint8) if ws is None else  # the largest block any window may ask
-                     ws.empty("cut_block", (int(pruned_scratch_bytes(n_pad, n_px, n_px)),), np.uint8))
             ok, areas, levels = pruned_clusters(z, seg_max, z_min, z_max, step, np.int64(k_eff), np.int64(top), conn8,
                                                 conn8, float(max_area), np.int64(check), np.int64(minimum),
-                                                clusters.reshape(-1), block)
+                                                clusters.reshape(-1))
             if ok:
                 return clusters, areas, levels.astype(np.int32)
         # the whole tree's flood (find_clusters' own), without the pixel levels and the counts per level
-        n_pad = (H + 2) * (W + 2)
-        block = None if ws is None else ws.empty("cut_block", (14 * n_pad + 256,), np.uint8)  # _flood_scratch's
-        tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity, block=block)
+        tree = _flood(z, seg_max, z_min, z_max, step, K, max_area, connectivity)
         if tree is not None:
             clusters = np.zeros((H, W), dtype=np.int32)
             outliers = np.zeros((H, W), dtype=bool)
