@@ -17,8 +17,9 @@ look up are replaced by wrappers while timing): per step, the median over ``--re
 ms (``time.process_time``: every thread), of its system ms and of its minor page faults
 (``getrusage``), the steps nested (a wrapper's time includes the wrapped steps it calls). The line
 ``whole`` is the call; ``own`` is the whole less the top-level steps.
-The last line sums the whole calls' medians over the synthetic frames but the held-out one (``HELD_OUT``): the six
-classes of the suspects' bar (docs/performance.md), with the ratio old / new.
+The last lines sum the whole calls' medians over the synthetic frames but the held-out one (``HELD_OUT``): the six
+classes of the suspects' bar (docs/performance.md), with the ratio old / new; and over the ray-traced frames (the
+held-out one too), the bar's second sum.
 """
 
 from __future__ import annotations
@@ -265,6 +266,13 @@ def main() -> None:
         line = " -> ".join(f"{1000 * v:,.1f}" for v in sums.values())
         ratio = f", ratio {sums['old'] / sums['new']:.3f}" if len(sums) == 2 else ""
         print(f"sum of the whole calls over {len(summed)} classes (CPU ms, old -> new): {line}{ratio}; "
+              f"load average {' '.join(f'{v:.1f}' for v in __import__('os').getloadavg())}")
+    traced = [lab for lab in wholes if lab.startswith("speed_") and "raytraced" in lab]
+    if traced:  # the lead's second sum (round 2026-12-07f): the ray-traced frames, the held-out one too
+        sums = {t: sum(wholes[lab][t] for lab in traced) for t in wholes[traced[0]]}
+        line = " -> ".join(f"{1000 * v:,.1f}" for v in sums.values())
+        ratio = f", ratio {sums['old'] / sums['new']:.3f}" if len(sums) == 2 else ""
+        print(f"sum of the whole calls over the {len(traced)} ray-traced frames (CPU ms, old -> new): {line}{ratio}; "
               f"load average {' '.join(f'{v:.1f}' for v in __import__('os').getloadavg())}")
 
 
