@@ -10,7 +10,10 @@ zone = every valid pixel). With ``--against``, that tree's ``zcut`` is loaded be
 ``zcut_old`` (its own numba caches) and its calls alternate with this tree's; the results of both are
 checked equal field by field (and against :func:`zcut.suspects.suspects_reference` of this tree once per
 frame with ``--reference``). ``--fits``: the call is the page's with a part model (``patches=False``: no patch
-detector, docs/labelling_real.md), in both trees.
+detector, docs/labelling_real.md), in both trees. The process first takes the settings every ``zcut`` command
+takes (:func:`replay.process.configure_process`: numba's threading layer, one malloc arena, the freed memory kept),
+as the labelling page's own process does; ``--bare`` leaves glibc's and numba's defaults (what this bench measured
+before the round of 2026-12-07f: 7-9 k page faults a call on the hand-made frames).
 
 Each step is a function the call makes from Python (the module globals ``suspects()`` and its helpers
 look up are replaced by wrappers while timing): per step, the median over ``--repeat`` calls of its CPU
@@ -197,7 +200,13 @@ def main() -> None:
     ap.add_argument("--steps", action="store_true", help="print every step (default: the whole call only)")
     ap.add_argument("--fits", action="store_true",
                     help="call as the page does with a part model: patches=False (no patch detector)")
+    ap.add_argument("--bare", action="store_true",
+                    help="without the process settings of every zcut command (replay.process.configure_process)")
     args = ap.parse_args()
+    if not args.bare:
+        from replay.process import configure_process
+
+        configure_process()  # as `zcut annotate`'s process (cli.main): before numba and the threads start
     kw = {"patches": False} if args.fits else {}
 
     trees = [("new", load_tree(Path(__file__).resolve().parents[1], "zcut"))]
