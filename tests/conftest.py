@@ -19,6 +19,12 @@ _CACHE = tempfile.mkdtemp(prefix="zcut-test-cache-")
 os.environ["ZCUT_CACHE"] = _CACHE
 atexit.register(shutil.rmtree, _CACHE, True)
 
+# the processes the tests start (every `zcut` command, the workers, the Ray cluster) write the bytecode of the
+# modules they compile where Python keeps it (the git-ignored ``__pycache__`` beside each module, where numba keeps
+# its kernels), and the next process reads it, as an installed zcut does: under PYTHONDONTWRITEBYTECODE=1 every
+# process compiled every module of the checkout again (+0.2 CPU s a replay, docs/performance.md).
+os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from real_data_path import REAL_DATA  # noqa: E402

@@ -254,9 +254,12 @@ def _inside(spec_path: str) -> int:
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
     env["RAY_USAGE_STATS_ENABLED"] = "0"
     t0 = time.perf_counter()
+    # no autoscaler monitor (a fixed local cluster: nothing to scale) and no log monitor (the drivers ask for no
+    # workers' logs: ``log_to_driver=False``): two Python daemons fewer to start and to keep polling
     start = subprocess.run([ray_bin, "start", "--head", "--node-ip-address", "127.0.0.1", "--port", str(RAY_PORT),
                             "--num-cpus", str(spec["cpus"]), "--disable-usage-stats", "--include-dashboard",
-                            "false", "--temp-dir", spec["temp_dir"]], check=False, capture_output=True, text=True, env=env, timeout=300)
+                            "false", "--no-monitor", "--include-log-monitor", "false", "--temp-dir", spec["temp_dir"]],
+                           check=False, capture_output=True, text=True, env=env, timeout=300)
     ray_start_s = time.perf_counter() - t0
     if start.returncode != 0:
         print(f"ray start failed (exit {start.returncode}):\n{start.stdout}\n{start.stderr}", file=sys.stderr)
