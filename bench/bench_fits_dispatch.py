@@ -96,15 +96,18 @@ def main() -> None:
                 cpu = sum(float(v[2]) for v in res[name, level].values())  # type: ignore[arg-type]
                 print(f"{name} {level}: fits' CPU {cpu:.2f} s, load {os.getloadavg()[0]:.1f}", flush=True)
     for name in trees:
-        print(f"\n{name} tree ({trees[name]}): the literal, then per level '=' where the fits' digest is it")
-        print(f"{'pin':18s} {'literal':>22s} " + " ".join(f"{v:>16s}" for v in levels))
+        print(f"\n{name} tree ({trees[name]}): the literal, then per level '=' where the fits' digest is it; "
+              f"'{levels[0]}=' where it is not but equals the first level's")
+        print(f"{'pin':18s} {'literal':>22s} " + " ".join(f"{v:>21s}" for v in levels))
         for pin in args.pins.split(","):
             want = res[name, levels[0]][pin][3]
+            first = res[name, levels[0]][pin][:2]
             cells = []
-            for level in levels:
+            for k, level in enumerate(levels):
                 got = res[name, level][pin]
-                cells.append("=" if got[:2] == want else f"{got[0]} {str(got[1])[:10]}")
-            print(f"{pin:18s} {want[0]:>5} {want[1]:>16s} " + " ".join(f"{c:>16s}" for c in cells))
+                cells.append("=" if got[:2] == want else f"{levels[0]}=" if k and got[:2] == first
+                             else f"{got[0]} {got[1]}")
+            print(f"{pin:18s} {want[0]:>5} {want[1]:>16s} " + " ".join(f"{c:>21s}" for c in cells))
 
 
 if __name__ == "__main__":
