@@ -21,7 +21,9 @@ regenerated from the seed, then scores the fits — only to score them:
 - **explained** on the top layer: the share of the valid, on-surface (not ``/ground_truth/off_surface``)
   pixels of the instances at least half visible that lie in some fit's ``pixels`` (within
   3 × max(Err, floor) of a fitted instance).
-- **CPU-s per frame**: ``time.process_time`` of ``fit_prepared`` (all threads); preparing the model
+- **CPU-s per frame**: ``time.process_time`` of ``fit_prepared`` (all threads), in a process with every ``zcut``
+  command's settings (:func:`replay.process.configure_process`, as the page's; ``--bare``: without, as the
+  figures before the round of 2026-12-07f were measured); preparing the model
   (once per log) is reported apart. ``--repeat N`` fits each frame N times (the CPU column: the smallest,
   all of them in the JSON); ``--phases`` fits it once more with each step wrapped in a CPU timer and
   prints where the time goes (:func:`phase_times`; the wrappers cost a few per cent; inclusive times, a
@@ -463,6 +465,8 @@ def main() -> None:
                     help="with --guesses: the winner's rank among the guesses' scores after N coarse ICP steps")
     ap.add_argument("--no-proposals", action="store_true", help="score the fits only, not the proposals")
     ap.add_argument("--repeat", type=int, default=1, help="fit each frame this many times (CPU: the smallest)")
+    ap.add_argument("--bare", action="store_true",
+                    help="without the process settings of every zcut command (replay.process.configure_process)")
     ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                     help="a FitParams field (e.g. seed_shifts=0: the fits without their second pass)")
     ap.add_argument("--variant", action="append", default=[], metavar="LABEL:NAME=VALUE[,NAME=VALUE...]",
@@ -470,6 +474,10 @@ def main() -> None:
                          "after the plain run and in the order given (LABEL, at most 6 characters, names its rows; "
                          "the order is reversed on every other frame: old and new alternate)")
     args = ap.parse_args()
+    if not args.bare:
+        from replay.process import configure_process
+
+        configure_process()  # as `zcut annotate`'s process (cli.main), where the page's fits run
     if args.same:
         _same(*args.same)
         return
