@@ -88,6 +88,9 @@ def main() -> None:
     ap.add_argument("--cache", default=None, metavar="DIR", help="keep the synthesized frames in DIR")
     ap.add_argument("--json", default=None)
     args = ap.parse_args()
+    from replay.process import configure_process
+
+    configure_process()  # the process settings of every zcut command, the page's fits' process (bench_fits.py's default)
     if not (args.old / "zcut" / "fits" / "__init__.py").is_file():
         raise SystemExit(f"--old {args.old}: no zcut/fits/__init__.py there (a git archive of a zcut tree?)")
     import zcut.fits as new
