@@ -890,6 +890,21 @@ def listed_outlier_mask(lab, pix, own, fin, node_parent, tagged, out):  # type: 
             out[o] = True
 
 
+@numba.njit(inline="always", nogil=True)
+def _number_cluster(x, o, n, number, tops, labels, areas):  # type: ignore[no-untyped-def]  # numba kernel
+    """Pixel ``o`` joins the cluster of node ``x``, numbered at its first pixel (``number[x]``, 1-based; ``tops`` the
+    nodes in that order): ``labels[o]`` its number, its pixel counted in ``areas``; returns the clusters numbered so
+    far (``n`` + 1 when ``x`` is new). The read-outs :func:`listed_cluster_labels` and :func:`pruned_cluster_labels`."""
+    if number[x] == 0:
+        tops[n] = x
+        n += 1
+        number[x] = n
+    i = number[x]
+    labels[o] = i
+    areas[i - 1] += 1
+    return n
+
+
 @numba.njit(cache=True, nogil=True)
 def listed_cluster_labels(lab, pix, own, fin, node_parent, tagged, labels, outliers):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`cluster_labels` over the pixels of :func:`flood_levels` only (``labels`` int32 and
@@ -908,14 +923,8 @@ def listed_cluster_labels(lab, pix, own, fin, node_parent, tagged, labels, outli
         x = outer[lab[pix[t]]]
         if x < 0:
             continue
-        if number[x] == 0:
-            tops[n] = x
-            n += 1
-            number[x] = n
-        i = number[x]
-        labels[o] = i
+        n = _number_cluster(x, o, n, number, tops, labels, areas)
         outliers[o] = True
-        areas[i - 1] += 1
     return tops[:n], areas[:n]
 
 
@@ -1724,13 +1733,7 @@ def pruned_cluster_labels(z, lab, pix, fin, node_parent, tagged, labels, wr=0, w
         o = (wr + rp - 1) * ZW + wc + (p - rp * Wp - 1)
         if not np.isfinite(zf[o]):
             continue
-        if number[x] == 0:
-            tops[n] = x
-            n += 1
-            number[x] = n
-        i = number[x]
-        labels[o] = i
-        areas[i - 1] += 1
+        n = _number_cluster(x, o, n, number, tops, labels, areas)
     return tops[:n], areas[:n]
 
 
