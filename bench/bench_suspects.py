@@ -39,6 +39,9 @@
    ``--fits``: both trees call it as the labelling page does with a part model (``patches=False``, in a tree that
    has the option; an older tree runs every detector, as its page did); printed beside the times: the suspect
    pixels, the patch detector's pixels, the groups grouped by ``patch`` and all groups, old / new.
+   Every worker, and this process with ``--speed`` alone or ``--parts``, runs in the process settings of every
+   ``zcut`` command (:func:`replay.process.configure_process`, as the labelling page's process); ``--bare`` leaves
+   glibc's and numba's defaults (what this bench measured before 2026-12-07g: 7–13 % more CPU a call).
 7. ``--speed --against OLD_TREE --parts``: the parts the fifth round changed (docs/performance.md,
    "Suspects ... fifth round"), ``OLD_TREE``'s code loaded beside this tree's in one process,
    alternating, outputs checked equal, on the .npy frames of ``--work`` (made by 6) and the scans of
@@ -53,6 +56,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from timing import WORKER_SETTINGS, worker_env
 
 from zcut.cuts import find_clusters
 from zcut.params import SuspectParams, ZCutParams
@@ -423,7 +427,7 @@ def run_speed(work: Path, sizes: list[tuple[int, int]], real: Path | None, repea
 
 
 #: the worker of --against: times suspects() as the labelling page calls it on .npy / .pcd frames
-_WORKER = """
+_WORKER = WORKER_SETTINGS + """
 import inspect, sys, time
 import numpy as np
 from zcut.params import SuspectParams
@@ -454,7 +458,7 @@ for k, path in enumerate(sys.argv[4:]):
 
 
 def run_against(work: Path, old: Path, sizes: list[tuple[int, int]], real: Path | None, repeat: int,
-                rounds: int, *, fits: bool = False) -> None:
+                rounds: int, *, fits: bool = False, bare: bool = False) -> None:
     """The fast path of tree ``old`` against this one's, whole calls in alternating processes; ``fits``: as the page
     calls it with a part model (``patches=False``) in a tree that has the option."""
     import subprocess
@@ -488,12 +492,13 @@ def run_against(work: Path, old: Path, sizes: list[tuple[int, int]], real: Path 
         for tag, tree in (("old", old.resolve()), ("new", here)):
             res = subprocess.run([sys.executable, "-c", _WORKER, str(repeat), str(work / f"against_{tag}"),
                                   "fits" if fits else "all", *files],
-                                 cwd=tree, env={**__import__("os").environ, "PYTHONPATH": str(tree)},
+                                 cwd=tree, env=worker_env(str(tree), bare=bare),
                                  check=True, capture_output=True, text=True)
             cpu[tag].append([float(v) for v in res.stdout.split()])
     print(f"CPU ms per call, suspects(edge_surface=EdgeSurfaceParams(){', patches=False' if fits else ''}), zone = "
           f"every valid pixel; old = {old}, new = {here}; median of {repeat} calls, each of {rounds} alternating "
-          f"rounds; load {__import__('os').getloadavg()[0]:.1f}")
+          f"rounds; {'bare processes' if bare else 'the page process settings'}; "
+          f"load {__import__('os').getloadavg()[0]:.1f}")
     print(f"{'frame':34s} {'old':>15s} {'new':>15s} {'old/new':>7s} same  suspect px old/new, patch px old/new, "
           f"patch groups old/new, groups old/new")
     patch = DETECTORS.index("patch")
@@ -625,7 +630,13 @@ def main() -> None:
                     help="--against: as the page calls it with a part model (patches=False where the tree has it)")
     ap.add_argument("--parts", action="store_true",
                     help="--against: the fifth round's parts, old / new in one process (frames of --work)")
+    ap.add_argument("--bare", action="store_true",
+                    help="--speed: without the process settings of every zcut command (replay.process.configure_process)")
     args = ap.parse_args()
+    if args.speed and not args.bare and (args.against is None or args.parts):  # in this process
+        from replay.process import configure_process
+
+        configure_process()  # as `zcut annotate`'s process (cli.main): before numba and the threads start
     if args.speed:
         with_raytraced_seeds(args.raytraced_seeds)
         sizes = [tuple(int(v) for v in s.split("x"))[::-1] for s in args.sizes.split(",")]
@@ -634,7 +645,7 @@ def main() -> None:
             return
         if args.against is not None:
             run_against(args.work, args.against, sizes, args.real, args.repeat, args.rounds,  # type: ignore[arg-type]
-                        fits=args.fits)
+                        fits=args.fits, bare=args.bare)
             return
         run_speed(args.work, sizes, args.real, args.repeat)  # type: ignore[arg-type]
         return

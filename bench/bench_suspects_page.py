@@ -21,8 +21,11 @@ else ``/ground_truth/outliers``, ``/ground_truth/unknown`` left out), the truth 
 fallback rule of docs/labelling.md (a group is an outlier when its gap exceeds 3 τ; with no surface below, when it
 was grouped as floating or above the rim: ``bench/bench_stereo_patches.py``'s emulation).
 
+Each worker runs in the process settings of every ``zcut`` command (:func:`replay.process.configure_process`, as
+the page's own process); ``--bare`` leaves glibc's and numba's defaults (this bench's measure before 2026-12-07g).
+
     PYTHONPATH=. .venv/bin/python bench/bench_suspects_page.py --logs ZINC.mcap,RT.mcap --frames 0 --modes model \\
-        --against /tmp/old [--work DIR] [--repeat 3] [--rounds 2] [--json F]
+        --against /tmp/old [--work DIR] [--repeat 3] [--rounds 2] [--json F] [--bare]
 """
 
 from __future__ import annotations
@@ -36,11 +39,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from timing import WORKER_SETTINGS, worker_env
 
 ROOT = Path(__file__).resolve().parents[1]
 
 #: the worker: one tree's page groups and suspects' CPU on the .npz inputs (argv: mode repeat out inputs...)
-_WORKER = r"""
+_WORKER = WORKER_SETTINGS + r"""
 import inspect, sys, time
 import numpy as np
 from annotate.groups import review_groups
@@ -164,6 +168,8 @@ def main() -> int:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--rounds", type=int, default=2)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--bare", action="store_true",
+                    help="workers without the process settings of every zcut command (replay.process.configure_process)")
     args = ap.parse_args()
     frames = {int(v) for v in args.frames.split(",") if v} or None
     inputs = prepare([Path(v) for v in args.logs.split(",") if v], frames, args.work)
@@ -177,12 +183,13 @@ def main() -> int:
             for tag, tree in (("old", args.against.resolve()), ("new", here)):
                 res = subprocess.run([sys.executable, "-c", _WORKER, mode, str(args.repeat),
                                       str(args.work / f"{mode}_{tag}"), *files],
-                                     cwd=tree, env={**os.environ, "PYTHONPATH": str(tree)},
+                                     cwd=tree, env=worker_env(str(tree), bare=args.bare),
                                      check=True, capture_output=True, text=True)
                 cpu[tag].append([tuple(float(x) for x in line.split()) for line in res.stdout.split("\n") if line.strip()])
         print(f"\nmode {mode} ({'the page with a part model' if mode == 'model' else 'the page without one'}); "
               f"old = {args.against}, new = {here}; CPU s, median of {args.repeat} calls, each of {args.rounds} "
-              f"alternating rounds; load {os.getloadavg()[0]:.1f}")
+              f"alternating rounds; {'bare processes' if args.bare else 'the page process settings'}; "
+              f"load {os.getloadavg()[0]:.1f}")
         print(f"{'frame':28s} {'suspects old/new':>22s} {'ratio':>6s} {'groups old/new':>22s} {'ratio':>6s} "
               f"{'groups':>8s} {'patch':>6s} {'new=old':>8s} {'old kept':>9s} {'px':>7s}  truth")
         for k, (label, f) in enumerate(inputs):
