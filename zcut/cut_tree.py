@@ -76,6 +76,7 @@ __all__ = [
     "pruned_outlier_mask",
     "pruned_outliers",
     "pruned_scratch",
+    "squeezed_heights",
     "qlevel",
     "segments_in_cuts",
     "taggable_forest",
@@ -1735,6 +1736,56 @@ def pruned_cluster_labels(z, lab, pix, fin, node_parent, tagged, labels, wr=0, w
             continue
         n = _number_cluster(x, o, n, number, tops, labels, areas)
     return tops[:n], areas[:n]
+
+
+@numba.njit(cache=True, nogil=True)
+def squeezed_heights(z, z_max, step, q_min, out):  # type: ignore[no-untyped-def]  # numba kernel
+    """The heights of a cut that holds every pixel with its bands of empty levels squeezed, for
+    :func:`zcut.cuts.cluster_labels_of`: each finite pixel's level ``q`` (:func:`qlevel`, at most ``q_min``, the
+    lowest height's) becomes ``map[q]``, where ``map`` keeps 0 and 1 and, between consecutive levels of S = {0, 1}
+    ∪ {the levels some pixel is at}, counts a gap of g levels as min(g, 2); ``out`` = -map[q] (step 1.0 from a
+    top of 0.0: :func:`qlevel` gives exactly ``map[q]`` there), NaN where ``z`` is not finite. Returns (``map``
+    ((q_min + 1,) int64, -1 off S), its inverse ((map[q_min] + 1,) int64, -1 off map(S))).
+
+    Why the clusters are the same: empty levels add no pixel, so the sequence of distinct cuts, the tree's
+    nodes as pixel sets and their order are the same, a node's birth b and end e (levels in S) becoming map[b],
+    map[e]; with every pixel in the cuts a node is tagged iff max(b, 1) <= e - 2 (and its size is below
+    max_area: the same sets), and e - max(b, 1), a sum of gaps each >= 1, is >= 2 iff the sum of their
+    min(g, 2) is (map keeps 1, so max(map[b], 1) = map[max(b, 1)])."""
+    H, W = z.shape
+    occ = np.zeros(q_min + 1, np.bool_)
+    occ[0] = True
+    if q_min >= 1:
+        occ[1] = True
+    hi = np.int64(q_min + 1)
+    zf = z.reshape(-1)
+    of = out.reshape(-1)
+    for p in range(zf.size):  # the levels, into out for now (NaN where not finite)
+        v = zf[p]
+        if np.isfinite(v):
+            q = qlevel(v, z_max, step, hi)
+            of[p] = q
+            occ[q] = True
+        else:
+            of[p] = np.nan
+    fwd = np.full(q_min + 1, -1, np.int64)
+    last = 0
+    fwd[0] = 0
+    m = 0
+    for q in range(1, q_min + 1):
+        if occ[q]:
+            m += min(q - last, 2)
+            fwd[q] = m
+            last = q
+    inv = np.full(m + 1, -1, np.int64)
+    for q in range(q_min + 1):
+        if fwd[q] >= 0:
+            inv[fwd[q]] = q
+    for p in range(zf.size):
+        v = of[p]
+        if v == v:
+            of[p] = 0.0 - float(fwd[np.int64(v)])
+    return fwd, inv
 
 
 @numba.njit(cache=True, nogil=True)

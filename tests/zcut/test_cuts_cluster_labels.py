@@ -179,3 +179,27 @@ def test_the_suspects_call_itself() -> None:
         assert whole(hz, p)
         check_all(hz, p, reference=False)
         assert same_clusters(hz, p) > 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_deep_cuts_with_squeezed_levels(seed: int) -> None:
+    """A cut that holds every pixel over more than SHALLOW_LEVELS levels, most of them empty (far points, terraces
+    apart by bands of 1, 2, 3 and thousands of empty levels, NaN holes): the pruned flood on the squeezed heights
+    (zcut.cuts._squeezed_clusters applies) gives find_clusters' clusters, areas and levels (mapped back)."""
+    from zcut.cuts import _squeezed_clusters
+
+    rng = np.random.default_rng(4700 + seed)
+    step = 0.5
+    z = terraces(rng, int(rng.integers(20, 50)), int(rng.integers(30, 120)), step)
+    fin = np.isfinite(z)
+    for gap in rng.choice([1, 2, 3, 700, 2500], size=int(rng.integers(2, 6))):
+        cut = float(rng.choice(z[fin]))
+        z[fin & (z < cut)] -= float(gap) * step  # a band of empty levels below the height `cut`
+    far = rng.integers(0, z.size, size=3)
+    z.flat[far] = np.nanmin(z) - rng.uniform(4200, 9000) * step  # far points
+    p = whole_range(z, step, float(rng.choice([3.0, 17.0, 60.0, 400.0])))
+    _, lo, hi, _ = _finite_range(z)
+    q_min = int(qlevel(lo, hi, p.step, np.int64(n_levels(p.step, p.max_depth) + 2)))
+    assert q_min - 1 >= SHALLOW_LEVELS
+    assert _squeezed_clusters(z, hi, p.step, q_min, p.max_area, p.connectivity, 0, None) is not None
+    same_clusters(z, p)
