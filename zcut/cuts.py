@@ -612,8 +612,8 @@ def _cluster_labels(height: FloatImage, params: ZCutParams, *, minimum: int = PR
         if whole:
             K = q_min - 2  # (above)
         k_eff, top = _levels(z_min, z_max, step, K)
-        if whole and top >= SHALLOW_LEVELS and (H + 2) * (W + 2) < 2**31 - 1:
-            got = _squeezed_clusters(z, z_max, step, q_min, max_area, connectivity, minimum, check)
+        if whole and top >= SHALLOW_LEVELS and (H + 2) * (W + 2) < 2**31 - 1 and q_min < 2**16 - 1:
+            got = _squeezed_clusters(z, seg_max, z_max, step, q_min, max_area, connectivity, minimum, check)
             if got is not None:
                 return got
         if top < SHALLOW_LEVELS and (H + 2) * (W + 2) < 2**31 - 1 and max_area <= H * W:
@@ -638,21 +638,24 @@ def _cluster_labels(height: FloatImage, params: ZCutParams, *, minimum: int = PR
     return cut.clusters, cut.areas, cut.levels
 
 
-def _squeezed_clusters(z: np.ndarray, z_max: float, step: float, q_min: int, max_area: float, connectivity: int,
-                       minimum: int, check: int | None) -> tuple[Labels, np.ndarray, np.ndarray] | None:
+def _squeezed_clusters(z: np.ndarray, seg_max: np.ndarray, z_max: float, step: float, q_min: int, max_area: float,
+                       connectivity: int, minimum: int, check: int | None) -> tuple[Labels, np.ndarray, np.ndarray] | None:
     """:func:`_cluster_labels` of a cut that holds every pixel, deeper than ``SHALLOW_LEVELS``, by the pruned flood
     on its heights with the bands of empty levels squeezed to at most two (``zcut.cut_tree.squeezed_heights``: the
     same clusters and areas; the levels mapped back), when that leaves fewer than ``SHALLOW_LEVELS`` levels: a
     ray-traced frame's far points spread 1.95 M pixels over 25,990 levels, 3,267 of them occupied (3,826 once
-    squeezed). None when it does not apply (the whole tree's flood then)."""
+    squeezed). ``seg_max`` is :func:`_finite_range`'s of ``z``; the squeezed heights' range and row segments' maxima
+    come from the squeeze itself (:func:`_finite_range` of them equals them: tests/zcut/test_cuts_cluster_labels.py).
+    None when it does not apply (the whole tree's flood then)."""
     H, W = z.shape
     zs = np.empty((H, W))
-    fwd, inv = squeezed_heights(z, z_max, step, np.int64(q_min), zs)
+    seg2 = np.empty_like(seg_max)
+    fwd, inv = squeezed_heights(z, seg_max, z_max, step, np.int64(q_min), zs, seg2)
     q2 = int(fwd[q_min])
     k2 = q2 - 2  # K' = q_min - 2 of the squeezed heights
     if k2 + 1 >= SHALLOW_LEVELS:
         return None
-    _, lo2, hi2, seg2 = _finite_range(zs)
+    lo2, hi2 = 0.0 - float(q2), 0.0  # the lowest pixel's level is q_min, the highest's 0
     k_eff, top = _levels(lo2, hi2, 1.0, k2)
     clusters = np.zeros((H, W), dtype=np.int32)
     conn8 = connectivity == 8
