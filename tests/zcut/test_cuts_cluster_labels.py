@@ -179,3 +179,113 @@ def test_the_suspects_call_itself() -> None:
         assert whole(hz, p)
         check_all(hz, p, reference=False)
         assert same_clusters(hz, p) > 0
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_deep_cuts_with_squeezed_levels(seed: int) -> None:
+    """A cut that holds every pixel over more than SHALLOW_LEVELS levels, most of them empty (far points, terraces
+    apart by bands of 1, 2, 3 and thousands of empty levels, NaN holes): the pruned flood on the squeezed heights
+    (zcut.cuts._squeezed_clusters applies) gives find_clusters' clusters, areas and levels (mapped back)."""
+    from zcut.cuts import _squeezed_clusters
+
+    rng = np.random.default_rng(4700 + seed)
+    step = 0.5
+    z = terraces(rng, int(rng.integers(20, 50)), int(rng.integers(30, 120)), step)
+    fin = np.isfinite(z)
+    for gap in rng.choice([1, 2, 3, 700, 2500], size=int(rng.integers(2, 6))):
+        cut = float(rng.choice(z[fin]))
+        z[fin & (z < cut)] -= float(gap) * step  # a band of empty levels below the height `cut`
+    far = rng.integers(0, z.size, size=3)
+    z.flat[far] = np.nanmin(z) - rng.uniform(4200, 9000) * step  # far points
+    p = whole_range(z, step, float(rng.choice([3.0, 17.0, 60.0, 400.0])))
+    _, lo, hi, _ = _finite_range(z)
+    q_min = int(qlevel(lo, hi, p.step, np.int64(n_levels(p.step, p.max_depth) + 2)))
+    assert q_min - 1 >= SHALLOW_LEVELS
+    _, _, _, seg = _finite_range(z)
+    assert _squeezed_clusters(z, seg, hi, p.step, q_min, p.max_area, p.connectivity, 0, None) is not None
+    same_clusters(z, p)
+
+
+def squeezed_reference(z: np.ndarray, z_max: float, step: float, q_min: int) -> tuple[np.ndarray, ...]:
+    """``zcut.cut_tree.squeezed_heights`` literally: :func:`qlevel` of every finite pixel, the occupied levels with
+    0 and 1, the gaps counted min(g, 2); the squeezed heights -map[q] (NaN where not finite), and their
+    :func:`_finite_range`. Returns (map, inverse, heights, (n, min, max, row segments' maxima))."""
+    fin = np.isfinite(z)
+    q = np.full(z.shape, -1, np.int64)
+    for i, v in np.ndenumerate(z):
+        if fin[i]:
+            q[i] = int(qlevel(float(v), z_max, step, np.int64(q_min + 1)))
+    assert q.max(initial=0) <= q_min
+    occupied = sorted({0, 1} & set(range(q_min + 1)) | set(q[fin].tolist()))
+    fwd = np.full(q_min + 1, -1, np.int64)
+    m, last = 0, 0
+    fwd[0] = 0
+    for level in occupied[1:]:
+        m += min(level - last, 2)
+        fwd[level] = m
+        last = level
+    inv = np.full(m + 1, -1, np.int64)
+    inv[fwd[occupied]] = occupied
+    out = np.full(z.shape, np.nan)
+    out[fin] = 0.0 - fwd[q[fin]].astype(np.float64)
+    return fwd, inv, out, _finite_range(out)
+
+
+def squeeze_inputs(case: str, seed: int) -> tuple[np.ndarray, float]:
+    """(heights, step) of a squeeze test: ``shallow`` (terraces on a dyadic step: every tie exact), ``deep``
+    (terraces thousands of levels apart, far points, a step that is not dyadic: heights on its levels' rounded
+    values, where the guess is off by one, and between them), ``nan-heavy`` (90 % NaN and a few infinities),
+    ``single`` (one height), ``invalid`` (no finite height), ``coarse`` (heights whose ulp exceeds the step)."""
+    rng = np.random.default_rng(8100 + seed)
+    H, W = int(rng.integers(5, 40)), int(rng.integers(60, 200))  # (W: row segments of 64 and a part one)
+    if case == "shallow":
+        return terraces(rng, H, W, 0.5), 0.5
+    step = float(rng.choice([0.1, 0.6819036739778641, 1.0 / 3.0]))
+    if case == "single":
+        z = np.full((H, W), float(rng.normal(0, 50)))
+        z[rng.random((H, W)) < 0.2] = np.nan
+        return z, step
+    if case == "invalid":
+        return np.full((H, W), np.nan), step
+    if case == "coarse":  # heights of ulp 1 on a step of 0.1: a guess off by several levels (qlevel's search)
+        z = 2.0**52 + 2.0**20 - rng.integers(0, 40, (H, W)) - rng.integers(0, 2, (H, W)) * 600.0
+        z[rng.random((H, W)) < 0.1] = np.nan
+        return z, 0.1
+    q = rng.integers(0, 9, (H, W)) + rng.choice([0, 1, 2, 3, 700, 2500, 9000], (H, W), p=[.5, .1, .1, .1, .1, .05, .05])
+    z = 12.25 - q * step  # on the levels' rounded heights
+    off = rng.random((H, W)) < 0.4
+    z[off] -= rng.random(int(off.sum())) * step  # between them
+    if case == "nan-heavy":
+        z[rng.random((H, W)) < 0.9] = np.nan
+        z.flat[rng.integers(0, z.size, 4)] = rng.choice([np.inf, -np.inf], 4)
+    return z, step
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("case", ["shallow", "deep", "nan-heavy", "single", "invalid", "coarse"])
+def test_squeezed_heights_as_the_literal_reference(case: str, seed: int) -> None:
+    """zcut.cut_tree.squeezed_heights (two vectorised passes, the squeezed heights' row segments' maxima from the
+    heights') against its literal reference: the map, its inverse, the heights and :func:`_finite_range` of them,
+    bit for bit; and the range _squeezed_clusters takes for them (max 0.0, min -map[q_min]) that range."""
+    from zcut.cut_tree import squeezed_heights
+
+    z, step = squeeze_inputs(case, seed)
+    n, lo, hi, seg = _finite_range(z)
+    if n > 0:
+        q_min = int(qlevel(lo, hi, step, np.int64(2**40)))
+    else:
+        lo, hi, q_min = 0.0, 0.0, 5  # (the kernel is not called so; the same answer all the same)
+    fwd, inv, out, (n2, lo2, hi2, seg2) = squeezed_reference(z, hi, step, q_min)
+    got = np.full(z.shape, 7.0)
+    got_seg = np.full(seg.shape, 7.0)
+    got_fwd, got_inv = squeezed_heights(z, seg, hi, step, np.int64(q_min), got, got_seg)
+    assert np.array_equal(got_fwd, fwd) and np.array_equal(got_inv, inv)
+    assert np.array_equal(got.view(np.int64), out.view(np.int64))
+    assert np.array_equal(got_seg.view(np.int64), seg2.view(np.int64))
+    if n > 0:
+        assert (n2 > 0, lo2, hi2) == (True, 0.0 - float(fwd[q_min]), 0.0)
+        assert math.copysign(1.0, hi2) == 1.0
+    else:
+        assert np.isnan(out).all() and n2 == 0
+    if case == "deep":
+        assert q_min > 2500 and int(fwd[q_min]) < q_min // 10  # squeezed
