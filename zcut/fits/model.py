@@ -21,7 +21,7 @@ from zcut.errors import InputShapeError, ParameterError, describe_array
 from zcut.fit_vetting import Solid
 from zcut.ray_hits import mesh_hit_t
 
-from .kernels import ModelIndex, build_index
+from .kernels import ModelIndex, build_index, covariance3, det3, kabsch3, mat_mul, mm, norm3, sym_eigh
 
 __all__ = ["PartModel", "cube_root", "prepare_model"]
 
@@ -223,8 +223,9 @@ def _check_mesh(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray
     scale = float(np.ptp(v, axis=0).max())
     if not scale > 0 or area.sum() <= 1e-9 * scale * scale:
         raise ParameterError("part model is degenerate: its triangles have no area")
-    sv = np.linalg.svd(v - v.mean(axis=0), compute_uv=False)
-    if sv[2] <= 1e-6 * sv[0]:
+    x = v - v.mean(axis=0)
+    ev = sym_eigh(mat_mul(np.ascontiguousarray(x.T), x))[0]  # the singular values' squares of x, ascending
+    if math.sqrt(max(float(ev[0]), 0.0)) <= 1e-6 * math.sqrt(max(float(ev[2]), 0.0)):
         raise ParameterError("part model is degenerate: its vertices are flat (all in one plane)")
     return v, t
 
@@ -274,7 +275,7 @@ def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float,
         while j < n and same[j - 1]:
             j += 1
         fs = face[i:j]
-        if j - i == 1 or np.min(nrm[fs] @ nrm[fs].T) < cos_thr:
+        if j - i == 1 or np.min(mm(nrm[fs], np.ascontiguousarray(nrm[fs].T))) < cos_thr:
             sharp.append(key[i])
         i = j
     if not sharp:
@@ -292,23 +293,21 @@ def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float,
 
 
 def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
-    axis = axis / np.linalg.norm(axis)
+    axis = axis / norm3(axis)
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
+    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * mm(K, K)
     return R
 
 
 def _maps_onto_itself(R: np.ndarray, samples: np.ndarray, centroid: np.ndarray, tree: Any, tol: float) -> bool:
-    q = (samples - centroid) @ R.T + centroid
+    q = mm(samples - centroid, np.ascontiguousarray(R.T)) + centroid
     d, _ = tree.query(q, k=1)
     return bool(np.percentile(d, 95) <= tol)
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation R minimising Σ |R a_i − b_i|² (both centred already)."""
-    U, _, Vt = np.linalg.svd(b.T @ a)
-    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
-    R: np.ndarray = U @ D @ Vt
+    R: np.ndarray = kabsch3(mm(np.ascontiguousarray(b.T), a))
     return R
 
 
@@ -320,9 +319,9 @@ def _refine_symmetry(R: np.ndarray, points: np.ndarray, centroid: np.ndarray, tr
     targets = points if targets is None else targets
     a = points - centroid
     for _ in range(8):
-        _, i = tree.query(a @ R.T + centroid, k=1)
+        _, i = tree.query(mm(a, np.ascontiguousarray(R.T)) + centroid, k=1)
         R = _kabsch(a, targets[i] - centroid)
-    d, _ = tree.query(a @ R.T + centroid, k=1)
+    d, _ = tree.query(mm(a, np.ascontiguousarray(R.T)) + centroid, k=1)
     return R, float(np.sqrt(np.mean(d * d)))
 
 
@@ -388,7 +387,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
         ax = axes[:, j]
         perp = axes[:, (j + 1) % 3]
         for a in np.linspace(0, np.pi, 72, endpoint=False):
-            h = _rot(ax, a) @ perp
+            h = mm(_rot(ax, a), perp)
             R = _rot(h, np.pi)
             if _maps_onto_itself(R, probe, centroid, tree, tol):
                 found.append(R)
@@ -407,7 +406,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
     taken: list[np.ndarray] = []
     exacts = [R for R, ok in refined if ok]
     for R, ok in refined:
-        if ok or not any(_angle_deg(G.T @ R) < MERGE_DEG for G in exacts + taken):
+        if ok or not any(_angle_deg(mm(G.T, R)) < MERGE_DEG for G in exacts + taken):
             taken.append(R)
     group: list[np.ndarray] = []
     for R in taken:
@@ -418,7 +417,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
         changed = False
         for A in list(group):
             for B in list(group):
-                C = A @ B
+                C = mm(A, B)
                 if len(group) < 48 and not any(np.abs(C - G).max() < 1e-3 for G in group):
                     group.append(C)
                     changed = True
@@ -455,10 +454,10 @@ def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None)
             P = np.zeros((3, 3))
             for i, j in enumerate(perm):
                 P[i, j] = signs[i]
-            if np.linalg.det(P) < 0:
+            if det3(P) < 0:
                 continue
             for turn in (0.0, np.pi / 4):
-                M = _rot(np.array([0.0, 0.0, 1.0]), turn) @ P @ axes.T
+                M = mm(mm(_rot(np.array([0.0, 0.0, 1.0]), turn), P), axes.T)
                 (first if perm[2] == 2 else rest).append(M)
     kept: list[np.ndarray] = []
     variants = np.zeros((0, 3, 3))
@@ -466,7 +465,7 @@ def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None)
     for M in first + rest:
         if len(variants) and np.abs(variants - M).max(axis=(1, 2)).min() < 0.15:
             continue
-        if cont is not None and len(ax_seen) and float((ax_seen @ (M @ cont)).max()) > 0.99:
+        if cont is not None and len(ax_seen) and float(mm(ax_seen, mm(M, cont)).max()) > 0.99:
             continue
         kept.append(M)
         variants = np.concatenate([variants, np.einsum("ij,kjl->kil", M, sym)])
@@ -495,10 +494,9 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
     tol = sphere_tolerance * float(r.mean())
     sphere = float(r.mean()) if max(float(np.abs(r - r.mean()).max()), float(np.abs(rc - r.mean()).max())) <= tol \
         else None
-    cov = np.cov((samples - centroid).T)
-    w, axes = np.linalg.eigh(cov)
-    axes = axes[:, ::-1]
-    if np.linalg.det(axes) < 0:
+    w, axes = sym_eigh(covariance3(samples))
+    axes = axes[:, ::-1].copy()
+    if det3(axes) < 0:
         axes[:, 2] = -axes[:, 2]
     tree = cKDTree(samples)
     edges, seg0, seg1 = _sharp_edges(v, t, spacing=extent / 150.0)
