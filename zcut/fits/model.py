@@ -439,6 +439,49 @@ def _triangle_normals(v: np.ndarray, t: np.ndarray) -> np.ndarray:
     return nrm
 
 
+def _canonical_sign(a: np.ndarray) -> np.ndarray:
+    """``a`` or ``-a``: the one whose entry of largest magnitude (the first of equal ones) is positive."""
+    i = int(np.argmax(np.abs(a)))
+    return -a if a[i] < 0 else a
+
+
+def _symmetry_frame(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None) -> np.ndarray:
+    """The frame the guess templates are made in: the principal ``axes`` (columns, descending variance) turned
+    onto the symmetries' own axes where those fix them. The third column becomes the axis of the symmetry rotations
+    of the highest order (n >= 3: the smallest angle), the first the half-turn axis perpendicular to it nearest the
+    largest-variance axis (the first of equal ones), the second their cross product; each sign canonical (entry of
+    largest magnitude positive). A hexagonal nut's principal axes in its plane are any pair (its covariance there
+    is nearly isotropic: 1 % apart) and their signs whatever the eigen-solver gives; in its symmetries' frame every
+    sign flip of an axis is a half-turn of the group, so the templates' classes are the same whatever the signs of
+    the model's or of a region's axes (docs/fits.md, issue 29, branch h/blas2). A model without such an axis (none
+    of order >= 3), or a body of revolution, keeps its principal axes."""
+    if cont is not None or len(sym) < 3:
+        return axes
+    cosang = np.clip((np.trace(sym, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    skew = np.stack([sym[:, 2, 1] - sym[:, 1, 2], sym[:, 0, 2] - sym[:, 2, 0], sym[:, 1, 0] - sym[:, 0, 1]], axis=1)
+    turns = np.flatnonzero((cosang < np.cos(np.radians(1.0))) & (cosang > -0.5 - 1e-6))  # 0 < angle <= 120 deg
+    if not len(turns):
+        return axes
+    k = int(turns[np.argmax(cosang[turns])])
+    a3 = _canonical_sign(skew[k] / norm3(skew[k]))
+    halves: list[np.ndarray] = []
+    for S, c in zip(sym, cosang):
+        if c < -1.0 + 1e-6:  # a half-turn: its axis is any nonzero column of S + I
+            B = S + np.eye(3)
+            h = B[:, int(np.argmax(np.einsum("ij,ij->j", B, B)))]
+            h = h / norm3(h)
+            if abs(float((h * a3).sum())) < 1e-6:
+                halves.append(h)
+    if halves:
+        a1 = halves[int(np.argmax([abs(float((h * axes[:, 0]).sum())) for h in halves]))]
+    else:
+        a1 = axes[:, 0] - float((axes[:, 0] * a3).sum()) * a3
+        a1 = a1 / norm3(a1)
+    a1 = _canonical_sign(a1)
+    a2 = np.cross(a3, a1)
+    return np.stack([a1, a2, a3], axis=1)
+
+
 def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None) -> np.ndarray:
     """The initial rotations up to the region's axes X (the guess is X @ M): M = Rz(turn) P Aᵀ for
     the 24 proper signed permutations P, turns 0 and 45° about the region's least-variance axis, A
@@ -522,6 +565,6 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
 
     return PartModel(vertices=v, triangles=t, centroid=centroid, sphere_radius=sphere, samples=samples,
                      normals=normals, axes=axes, extent_mm=extent, symmetries=sym, continuous_axis=cont,
-                     edges=edges, index=index, guesses=_guess_templates(axes, sym, cont),
+                     edges=edges, index=index, guesses=_guess_templates(_symmetry_frame(axes, sym, cont), sym, cont),
                      probe_samples=samples[probe], probe_normals=normals[probe], solid=solid,
                      _scene=scene, _tree=tree, _edge_tree=edge_tree)
