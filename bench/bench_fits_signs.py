@@ -5,8 +5,8 @@ the same frames in one process (issue 29: where the fits' own linear algebra los
         [--sensor handmade] [--variants old,J:D0,J:D1,J:D2,J:D3,C:D0,J:main,L:D0,L:main] [--cache DIR] \\
         [--trace FRAME:INSTANCE] [--json OUT]
 
-Runs in a tree whose fits have their own principal axes (``zcut.fits.kernels.principal_axes``: fbdd9d0 and after, on
-branch h/blas2). ``--old``: a ``git archive`` of the older tree (main), imported as bench/bench_fits_blas.py does.
+Runs in a tree whose fits have their own principal axes (``zcut.fits.fit.principal_axes``: fbdd9d0, and on branch
+h/blas2 its pick a47c778 and the symmetry frame bc99e14; reverted, docs/fits.md). ``--old``: a ``git archive`` of the older tree (main), imported as bench/bench_fits_blas.py does.
 A variant ``RULE:MODEL`` fits with this tree's code and:
 
 - ``RULE``, the signs of each region's axes: ``J`` as this tree computes them (``sym_eigh``: each vector's entry of
@@ -14,8 +14,9 @@ A variant ``RULE:MODEL`` fits with this tree's code and:
   ``C`` the least-variance axis (the region's normal) towards the camera, the middle one then signed to keep a right
   hand;
 - ``MODEL``, the model's axes and guess templates: ``D0``..``D3`` this tree's axes times the proper sign patterns
-  (1, 1, 1), (-1, -1, 1), (-1, 1, -1), (1, -1, -1) with ``_guess_templates`` of them, ``main`` the older tree's
-  model's guess templates (made from LAPACK's axes).
+  (1, 1, 1), (-1, -1, 1), (-1, 1, -1), (1, -1, -1), the templates made from them as this tree makes them (in the
+  symmetries' frame where the tree has ``_symmetry_frame``), ``main`` the older tree's model's guess templates (made
+  from LAPACK's axes).
 
 ``old`` is the older tree as it is. Each variant fits each frame once (bench/bench_fits_blas.py's frames and zone),
 scored by bench/bench_fits.py's ``score``; per frame the fully visible instances whose rotation error grew most
@@ -174,9 +175,15 @@ def main() -> None:
                          "fbdd9d0 or branch h/blas2)")
     if not (args.old / "zcut" / "fits" / "__init__.py").is_file():
         raise SystemExit(f"--old {args.old}: no zcut/fits/__init__.py there (a git archive of a zcut tree?)")
+    import zcut.fits.model as FM
     from replay.logs.part_model import PART_MODEL_ATTACHMENT, read_part_model_bytes
     from replay.synth.log import part_model_attachment
-    from zcut.fits.model import _guess_templates
+
+    def templates(A: np.ndarray, sym: np.ndarray, cont: np.ndarray | None) -> np.ndarray:
+        # this tree's construction: in the symmetries' frame where the tree has one (bc99e14), else the axes'
+        frame = FM._symmetry_frame(A, sym, cont) if hasattr(FM, "_symmetry_frame") else A
+        out: np.ndarray = FM._guess_templates(frame, sym, cont)
+        return out
 
     rules = _rules(F)
     w, h = (int(v) for v in args.size.split("x"))
@@ -190,8 +197,7 @@ def main() -> None:
         models: dict[str, Any] = {"main": dataclasses.replace(mn, guesses=mo.guesses)}
         for k, d in enumerate(SIGNS):
             A = mn.axes * np.array(d)
-            models[f"D{k}"] = dataclasses.replace(mn, axes=A, guesses=_guess_templates(A, mn.symmetries,
-                                                                                       mn.continuous_axis))
+            models[f"D{k}"] = dataclasses.replace(mn, axes=A, guesses=templates(A, mn.symmetries, mn.continuous_axis))
         print(f"guess templates: main {len(mo.guesses)}, " + ", ".join(f"D{k} {len(models[f'D{k}'].guesses)}"
                                                                        for k in range(4)), flush=True)
         rows: list[dict[str, Any]] = []
