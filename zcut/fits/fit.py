@@ -49,12 +49,8 @@ from .icp import EDGE_WEAK, guess_translations, icp, initial_rotations, pose_mat
 from .kernels import (
     coarse_search,
     edge_distances,
-    line_fit,
     lower_bounds,
-    mm,
-    norm3,
     occluding_boundary,
-    principal_axes,
     surface_distances,
     window_band,
     window_pixels,
@@ -107,7 +103,8 @@ def estimate_intrinsics(xyz_mm: np.ndarray) -> Intrinsics | None:
     for pix, ratio in ((cols, p[:, 0] / p[:, 2]), (rows, p[:, 1] / p[:, 2])):
         if np.ptp(pix) == 0 or np.ptp(ratio) == 0:
             return None
-        out.append(line_fit(ratio, pix.astype(np.float64)))
+        sol, *_ = np.linalg.lstsq(np.c_[ratio, np.ones(len(ratio))], pix.astype(np.float64), rcond=None)
+        out.append(sol)
     return float(out[0][0]), float(out[1][0]), float(out[0][1]), float(out[1][1])
 
 
@@ -146,7 +143,7 @@ class _Frame:
 def _window(frame: _Frame, T: np.ndarray, model: PartModel) -> tuple[slice, slice] | None:
     fx, fy, cx, cy = frame.K
     H, W = frame.valid.shape
-    c = mm(T[:3, :3], model.centroid) + T[:3, 3]
+    c = T[:3, :3] @ model.centroid + T[:3, 3]
     z = c[2] - model.extent_mm
     if z <= 1e-6:
         return None
@@ -183,14 +180,14 @@ def _near_distances(model: PartModel, points: np.ndarray, T: np.ndarray, within:
     every "d <= within" and the same d below it, without the exact query of the points far away)."""
     ix = model.index
     if ix is None or len(points) == 0:
-        return model.distance(mm(points - T[:3, 3], T[:3, :3]))
+        return model.distance((points - T[:3, 3]) @ T[:3, :3])
     p = np.ascontiguousarray(points, np.float64)
     lb = lower_bounds(p, np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h,
                       ix.centre_dist, ix.margin)
     out = np.full(len(p), np.inf)
     near = lb <= within
     if near.any():
-        out[near] = model.distance(mm(p[near] - T[:3, 3], T[:3, :3]))
+        out[near] = model.distance((p[near] - T[:3, 3]) @ T[:3, :3])
     return out
 
 
@@ -216,8 +213,8 @@ def _support(frame: _Frame, T: np.ndarray, model: PartModel, tol: float,
         return 0.0
     d = np.stack([(cc - cx) / fx, (rr - cy) / fy, np.ones(rr.shape)], axis=-1)
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    origin = np.broadcast_to(-mm(R.T, t), d.shape)
-    hit = model.ray_depths(np.ascontiguousarray(origin), mm(d, R))
+    origin = np.broadcast_to(-R.T @ t, d.shape)
+    hit = model.ray_depths(np.ascontiguousarray(origin), d @ R)
     predicted = np.isfinite(hit)
     if not predicted.any():
         return 0.0
@@ -326,7 +323,7 @@ def _surface_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> n
     (:func:`zcut.fits.kernels.surface_distances`), else exact."""
     ix = model.index
     if ix is None:
-        return model.distance(mm(points - T[:3, 3], T[:3, :3]))
+        return model.distance((points - T[:3, 3]) @ T[:3, :3])
     out: np.ndarray = surface_distances(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T[:3, :3]),
                                         np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h, ix.tri_grid, ix.a, ix.b,
                                         ix.c, ix.n, ix.tri)
@@ -336,7 +333,7 @@ def _surface_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> n
 def _edge_distances(model: PartModel, points: np.ndarray, T: np.ndarray) -> np.ndarray:
     ix = model.index
     if ix is None:
-        return model.nearest_edges(mm(points - T[:3, 3], T[:3, :3]))[0]
+        return model.nearest_edges((points - T[:3, 3]) @ T[:3, :3])[0]
     out: np.ndarray = edge_distances(np.ascontiguousarray(points, np.float64), np.ascontiguousarray(T[:3, :3]),
                                      np.ascontiguousarray(T[:3, 3]), ix.origin, ix.h, ix.seg_grid, ix.p0, ix.p1)
     return out
@@ -356,9 +353,9 @@ TURNS_DEG = (-24.0, -16.0, -8.0, 8.0, 16.0, 24.0)
 
 
 def _turn(axis: np.ndarray, angle: float) -> np.ndarray:
-    a = axis / norm3(axis)
+    a = axis / np.linalg.norm(axis)
     K = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
-    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * mm(K, K)
+    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
     return R
 
 
@@ -418,11 +415,12 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
                 break
         return found
 
-    # the points' principal axes, once: the guesses' rotations and the turns' axis (initial_rotations' own)
+    # the points' principal axes, once: the guesses' rotations and the turns' axis (the same arithmetic as
+    # initial_rotations' own, so the same bits)
     c = pts.mean(axis=0)
-    ax = principal_axes(pts)
+    _, ax = np.linalg.eigh(np.cov((pts - c).T))
     # the guesses as (rotations, translations) arrays, not a 4 × 4 matrix each (initial_poses' and shifted_poses'
-    # own functions)
+    # arithmetic: the same bits)
     Rs = np.stack(initial_rotations(pts, model, axes=ax))
     ts = guess_translations(pts, Rs, model)
     if shifts:
@@ -438,8 +436,8 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     tt_all = np.empty((len(turns), 3))
     for m, deg in enumerate(turns):
         Rt = _turn(ax[:, 0], np.radians(deg))
-        Rt_all[m] = mm(Rt, T_best[:3, :3])
-        tt_all[m] = mm(Rt, T_best[:3, 3] - c) + c
+        Rt_all[m] = Rt @ T_best[:3, :3]
+        tt_all[m] = Rt @ (T_best[:3, 3] - c) + c
     better = search(Rt_all, tt_all, stop=False)
     if better is not None and better[0] > best[0]:
         best = better
@@ -643,7 +641,7 @@ class _Claims:
         self.known.append(known)
         self.pixels.append(pix)
         self.alive.append(True)
-        c = mm(T[:3, :3], self.model.centroid) + T[:3, 3]
+        c = T[:3, :3] @ self.model.centroid + T[:3, 3]
         self.centres = np.vstack([self.centres, c[None]])
 
     def kill(self, j: int) -> None:
@@ -672,7 +670,7 @@ class _Claims:
         m = self.model
         if not len(self.poses) or not len(m.inside) or self.params.max_overlap >= 1:
             return np.zeros(0, np.int64)
-        c = mm(T[:3, :3], m.centroid) + T[:3, 3]
+        c = T[:3, :3] @ m.centroid + T[:3, 3]
         out: np.ndarray = np.flatnonzero(np.linalg.norm(self.centres - c, axis=1) < 2.0 * m.extent_mm)
         return out
 

@@ -16,17 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import (
-    det3,
-    facing_fronts,
-    facing_mask,
-    farthest_points,
-    icp_kernel,
-    mm,
-    norm3,
-    principal_axes,
-    stack_mat_vec,
-)
+from .kernels import farthest_points, icp_kernel
 from .model import PartModel
 
 __all__ = ["guess_translations", "icp", "icp_reference", "initial_pose", "initial_poses", "initial_rotations", "pose_matrix",
@@ -64,12 +54,13 @@ def initial_rotations(points: np.ndarray, model: PartModel, *, axes: np.ndarray 
     axis on the points' (a part lying as it shows itself) first (the classes are the model's own,
     computed once: :attr:`PartModel.guesses`).
 
-    ``axes``: the points' principal axes as the caller already has them, :func:`zcut.fits.kernels.principal_axes`
-    of the points (ascending variance; not modified), else computed here the same way."""
+    ``axes``: the points' principal axes as the caller already has them, ``np.linalg.eigh(np.cov((points -
+    points.mean(axis=0)).T))[1]`` (ascending variance; not modified), else computed here the same way."""
     if axes is None:
-        axes = principal_axes(points)
+        c = points.mean(axis=0)
+        _, axes = np.linalg.eigh(np.cov((points - c).T))
     ax = axes[:, ::-1].copy()
-    if det3(ax) < 0:
+    if np.linalg.det(ax) < 0:
         ax[:, 2] = -ax[:, 2]
     return list(np.einsum("ij,kjl->kil", ax, model.guesses))
 
@@ -79,19 +70,26 @@ def initial_pose(points: np.ndarray, R: np.ndarray, model: PartModel) -> np.ndar
     (seen along the direction of the points' centroid; an even subsample of them) on the points'
     centroid."""
     c = points.mean(axis=0)
-    view = c / max(norm3(c), 1e-9)
-    counts, sums = facing_fronts(model.probe_normals, model.probe_samples, np.ascontiguousarray(R[None], np.float64),
-                                 view)
-    front = sums[0] / counts[0] if counts[0] else model.probe_samples.mean(axis=0)
-    return pose_matrix(R, c - mm(R, front))
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    facing = (model.probe_normals @ R.T) @ view < 0
+    front = model.probe_samples[facing] if facing.any() else model.probe_samples
+    return pose_matrix(R, c - R @ front.mean(axis=0))
 
 
 def initial_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartModel) -> list[np.ndarray]:
     """:func:`initial_pose` of each rotation, in one pass."""
     if not rotations:
         return []
-    Rs = np.ascontiguousarray(np.stack(rotations), np.float64)
-    return [pose_matrix(R, t) for R, t in zip(Rs, guess_translations(points, Rs, model))]
+    c = points.mean(axis=0)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    Rs = np.stack(rotations)
+    facing = model.probe_normals @ (Rs.transpose(0, 2, 1) @ view).T < 0  # (s, g): n·(Rᵀ view) = (R n)·view
+    facing = facing.T
+    counts = facing.sum(axis=1)
+    sums = facing.astype(np.float64) @ model.probe_samples
+    allm = model.probe_samples.mean(axis=0)
+    front = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], allm)
+    return [pose_matrix(R, c - R @ f) for R, f in zip(Rs, front)]
 
 
 def shifted_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartModel, n: int) -> list[np.ndarray]:
@@ -101,21 +99,32 @@ def shifted_poses(points: np.ndarray, rotations: list[np.ndarray], model: PartMo
     model's whole facing side (:func:`initial_poses`) but may lie anywhere on it."""
     if n < 1 or not rotations:
         return []
-    Rs, ts = shifted_guesses(points, np.ascontiguousarray(np.stack(rotations), np.float64), model, n)
-    return [pose_matrix(R, t) for R, t in zip(Rs, ts)]
+    c = points.mean(axis=0)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    out: list[np.ndarray] = []
+    for R in rotations:
+        facing = (model.probe_normals @ R.T) @ view < 0
+        fs = model.probe_samples[facing]
+        if not len(fs):
+            continue
+        sel = farthest_points(np.ascontiguousarray(fs), min(n, len(fs)))  # the NumPy loop's indices, one call
+        out.extend(pose_matrix(R, c - R @ fs[j]) for j in sel)
+    return out
 
 
 def guess_translations(points: np.ndarray, Rs: np.ndarray, model: PartModel) -> np.ndarray:
     """(k, 3) the translations of :func:`initial_poses` for the rotations ``Rs`` (k, 3, 3), C-contiguous, without
-    a 4 × 4 matrix per guess. A sample faces the camera when n·(Rᵀ view) < 0 (:func:`zcut.fits.kernels.facing_fronts`:
-    the facing samples summed in their order, no BLAS)."""
+    a 4 × 4 matrix per guess: the same arithmetic (NumPy's stacked matmul gives each R @ f as the product of one
+    pair does), so the same bits."""
     c = points.mean(axis=0)
-    view = c / max(norm3(c), 1e-9)
-    Rs = np.ascontiguousarray(Rs, np.float64)
-    counts, sums = facing_fronts(model.probe_normals, model.probe_samples, Rs, view)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
+    facing = model.probe_normals @ (Rs.transpose(0, 2, 1) @ view).T < 0
+    facing = facing.T
+    counts = facing.sum(axis=1)
+    sums = facing.astype(np.float64) @ model.probe_samples
     allm = model.probe_samples.mean(axis=0)
     front = np.where(counts[:, None] > 0, sums / np.maximum(counts, 1)[:, None], allm)
-    out: np.ndarray = c - stack_mat_vec(Rs, np.ascontiguousarray(front), False)
+    out: np.ndarray = c - (Rs @ front[:, :, None])[:, :, 0]
     return out
 
 
@@ -126,11 +135,11 @@ def shifted_guesses(points: np.ndarray, Rs: np.ndarray, model: PartModel, n: int
     if n < 1 or not len(Rs):
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
     c = points.mean(axis=0)
-    view = c / max(norm3(c), 1e-9)
+    view = c / max(float(np.linalg.norm(c)), 1e-9)
     rs: list[np.ndarray] = []
     fronts: list[np.ndarray] = []
     for R in Rs:
-        facing = facing_mask(model.probe_normals, np.ascontiguousarray(R, np.float64), view)
+        facing = (model.probe_normals @ R.T) @ view < 0
         fs = model.probe_samples[facing]
         if not len(fs):
             continue
@@ -139,8 +148,8 @@ def shifted_guesses(points: np.ndarray, Rs: np.ndarray, model: PartModel, n: int
         fronts.append(fs[sel])
     if not rs:
         return np.zeros((0, 3, 3)), np.zeros((0, 3))
-    R_all = np.ascontiguousarray(np.concatenate(rs))
-    out: np.ndarray = c - stack_mat_vec(R_all, np.ascontiguousarray(np.concatenate(fronts)), False)
+    R_all = np.concatenate(rs)
+    out: np.ndarray = c - (R_all @ np.concatenate(fronts)[:, :, None])[:, :, 0]
     return R_all, out
 
 

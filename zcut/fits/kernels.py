@@ -12,365 +12,13 @@ Python loop per ICP step: one ICP run from one initial guess is one kernel call.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "coarse_search", "covariance3", "det3", "edge_distances", "facing_fronts",
-           "facing_mask", "farthest_points", "gram", "guess_score", "icp_kernel", "kabsch3", "line_fit", "lower_bounds",
-           "mat_mul", "mm", "norm3", "occluding_boundary", "polar3", "principal_axes", "solve_pivot", "stack_mat_vec",
-           "surface_distances", "sym_eigh", "window_band", "window_pixels", "window_rays"]
-
-
-# --- The fits' own small linear algebra (issue 29: the same bits under every OpenBLAS kernel) ------------------
-# NumPy's ``@``, ``np.dot``, ``np.cov``, ``np.linalg.norm`` of a vector and every ``np.linalg`` decomposition go to
-# OpenBLAS / LAPACK, whose kernel (chosen per CPU: ``OPENBLAS_CORETYPE``) changes their last bits; numba's ``@``
-# and ``np.linalg`` inside a kernel go to SciPy's copy. The routines below are plain loops in numba (no FMA
-# contraction, no reassociation: ``fastmath`` is off), each sum in index order, so they give the same bits on
-# every x86-64. docs/fits.md, "The fits' bytes the same under every OpenBLAS kernel".
-
-
-@numba.njit(cache=True, nogil=True)
-def mat_mul(A: np.ndarray, B: np.ndarray) -> np.ndarray:
-    """(m, k) @ (k, n): each entry's products summed in k's order."""
-    m, kk = A.shape
-    n = B.shape[1]
-    out = np.empty((m, n))
-    for i in range(m):
-        for j in range(n):
-            s = 0.0
-            for q in range(kk):
-                s += A[i, q] * B[q, j]
-            out[i, j] = s
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def stack_mat_vec(Rs: np.ndarray, v: np.ndarray, transpose: bool) -> np.ndarray:
-    """(k, 3): ``Rs[i] @ v[i]`` (``transpose``: ``Rs[i].T @ v[i]``) for (k, 3, 3) ``Rs`` and (k, 3) ``v``."""
-    out = np.empty((len(Rs), 3))
-    for i in range(len(Rs)):
-        for r in range(3):
-            if transpose:
-                out[i, r] = Rs[i, 0, r] * v[i, 0] + Rs[i, 1, r] * v[i, 1] + Rs[i, 2, r] * v[i, 2]
-            else:
-                out[i, r] = Rs[i, r, 0] * v[i, 0] + Rs[i, r, 1] * v[i, 1] + Rs[i, r, 2] * v[i, 2]
-    return out
-
-
-def mm(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """``a @ b`` of float64 vectors and matrices (1-D or 2-D each) without BLAS (:func:`mat_mul`): a vector's
-    dot product a 0-d array's value as a float array of shape ()."""
-    A = np.asarray(a, np.float64)
-    B = np.asarray(b, np.float64)
-    out = mat_mul(np.ascontiguousarray(A.reshape(1, -1) if A.ndim == 1 else A),
-                  np.ascontiguousarray(B.reshape(-1, 1) if B.ndim == 1 else B))
-    if A.ndim == 1 and B.ndim == 1:
-        return out.reshape(())
-    if A.ndim == 1:
-        return out.reshape(-1)
-    if B.ndim == 1:
-        return out.reshape(-1)
-    return out
-
-
-def norm3(v: np.ndarray) -> float:
-    """The Euclidean length of a 3-vector, its squares summed in order (``np.linalg.norm`` of a vector is BLAS's
-    ``ddot``)."""
-    x, y, z = float(v[0]), float(v[1]), float(v[2])
-    return math.sqrt(x * x + y * y + z * z)
-
-
-@numba.njit(cache=True, nogil=True)
-def det3(A: np.ndarray) -> float:
-    """The determinant of a 3 × 3 matrix, by the first row's cofactors."""
-    return (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
-            - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
-            + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
-
-
-@numba.njit(cache=True, nogil=True)
-def covariance3(points: np.ndarray) -> np.ndarray:
-    """``np.cov(points.T)`` of (n, 3) points (n >= 2): the mean and the centred products summed in the points'
-    order, divided by n − 1."""
-    n = len(points)
-    m0 = m1 = m2 = 0.0
-    for i in range(n):
-        m0 += points[i, 0]
-        m1 += points[i, 1]
-        m2 += points[i, 2]
-    m0 /= n
-    m1 /= n
-    m2 /= n
-    s00 = s01 = s02 = s11 = s12 = s22 = 0.0
-    for i in range(n):
-        x, y, z = points[i, 0] - m0, points[i, 1] - m1, points[i, 2] - m2
-        s00 += x * x
-        s01 += x * y
-        s02 += x * z
-        s11 += y * y
-        s12 += y * z
-        s22 += z * z
-    d = float(n - 1)
-    out = np.empty((3, 3))
-    out[0, 0], out[0, 1], out[0, 2] = s00 / d, s01 / d, s02 / d
-    out[1, 0], out[1, 1], out[1, 2] = s01 / d, s11 / d, s12 / d
-    out[2, 0], out[2, 1], out[2, 2] = s02 / d, s12 / d, s22 / d
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def sym_eigh(S: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(eigenvalues ascending, eigenvectors as columns) of the symmetric n × n ``S`` (its upper triangle read) by
-    cyclic Jacobi rotations, as :func:`numpy.linalg.eigh`: sweeps over the pairs (p, q) in order until no
-    off-diagonal entry is above 1e-18 of its diagonal pair (or at most 64 sweeps); equal eigenvalues keep the
-    sweeps' order. Each eigenvector's sign: its entry of largest magnitude (the first of equal ones) positive
-    (LAPACK fixes no sign)."""
-    n = S.shape[0]
-    A = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            A[i, j] = S[min(i, j), max(i, j)]
-    V = np.eye(n)
-    for _ in range(64):
-        rotated = False
-        for p in range(n - 1):
-            for q in range(p + 1, n):
-                apq = A[p, q]
-                if apq == 0.0 or abs(apq) <= 1e-18 * (abs(A[p, p]) + abs(A[q, q])):
-                    A[p, q] = 0.0
-                    A[q, p] = 0.0
-                    continue
-                rotated = True
-                theta = (A[q, q] - A[p, p]) / (2.0 * apq)
-                if abs(theta) > 1e150:
-                    t = 0.5 / theta
-                else:
-                    t = 1.0 / (abs(theta) + np.sqrt(theta * theta + 1.0))
-                    if theta < 0.0:
-                        t = -t
-                c = 1.0 / np.sqrt(t * t + 1.0)
-                s = t * c
-                for k in range(n):  # columns p, q: A J
-                    akp, akq = A[k, p], A[k, q]
-                    A[k, p] = c * akp - s * akq
-                    A[k, q] = s * akp + c * akq
-                for k in range(n):  # rows p, q: Jᵀ (A J)
-                    apk, aqk = A[p, k], A[q, k]
-                    A[p, k] = c * apk - s * aqk
-                    A[q, k] = s * apk + c * aqk
-                A[p, q] = 0.0
-                A[q, p] = 0.0
-                for k in range(n):
-                    vkp, vkq = V[k, p], V[k, q]
-                    V[k, p] = c * vkp - s * vkq
-                    V[k, q] = s * vkp + c * vkq
-        if not rotated:
-            break
-    w = np.empty(n)
-    for i in range(n):
-        w[i] = A[i, i]
-    order = np.arange(n)
-    for i in range(1, n):  # insertion sort: stable
-        j = i
-        while j > 0 and w[order[j - 1]] > w[order[j]]:
-            order[j - 1], order[j] = order[j], order[j - 1]
-            j -= 1
-    ws = np.empty(n)
-    Vs = np.empty((n, n))
-    for j in range(n):
-        ws[j] = w[order[j]]
-        big = 0
-        for k in range(n):
-            if abs(V[k, order[j]]) > abs(V[big, order[j]]):
-                big = k
-        sg = -1.0 if V[big, order[j]] < 0.0 else 1.0
-        for k in range(n):
-            Vs[k, j] = sg * V[k, order[j]]
-    return ws, Vs
-
-
-@numba.njit(cache=True, nogil=True)
-def solve_pivot(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """x with ``A`` x = ``b`` (n × n, n) by Gaussian elimination with partial pivoting (the first of equal pivots'
-    magnitudes); a zero pivot gives inf / NaN, not an error."""
-    n = A.shape[0]
-    M = A.copy()
-    x = b.copy()
-    for j in range(n):
-        piv = j
-        for i in range(j + 1, n):
-            if abs(M[i, j]) > abs(M[piv, j]):
-                piv = i
-        if piv != j:
-            for k in range(n):
-                M[j, k], M[piv, k] = M[piv, k], M[j, k]
-            x[j], x[piv] = x[piv], x[j]
-        for i in range(j + 1, n):
-            f = M[i, j] / M[j, j]
-            for k in range(j, n):
-                M[i, k] -= f * M[j, k]
-            x[i] -= f * x[j]
-    for j in range(n - 1, -1, -1):
-        s = x[j]
-        for k in range(j + 1, n):
-            s -= M[j, k] * x[k]
-        x[j] = s / M[j, j]
-    return x
-
-
-@numba.njit(cache=True, nogil=True)
-def polar3(R: np.ndarray) -> np.ndarray:
-    """The orthogonal polar factor of a nonsingular 3 × 3 ``R`` (U Vᵀ of its SVD U Σ Vᵀ): Newton's iteration
-    X ← (X + X⁻ᵀ) / 2 from R, X⁻ᵀ by cofactors, until a step moves no entry by more than 1e-15 (at most 64)."""
-    X = R.copy()
-    C = np.empty((3, 3))
-    for _ in range(64):
-        C[0, 0] = X[1, 1] * X[2, 2] - X[1, 2] * X[2, 1]
-        C[0, 1] = X[1, 2] * X[2, 0] - X[1, 0] * X[2, 2]
-        C[0, 2] = X[1, 0] * X[2, 1] - X[1, 1] * X[2, 0]
-        C[1, 0] = X[0, 2] * X[2, 1] - X[0, 1] * X[2, 2]
-        C[1, 1] = X[0, 0] * X[2, 2] - X[0, 2] * X[2, 0]
-        C[1, 2] = X[0, 1] * X[2, 0] - X[0, 0] * X[2, 1]
-        C[2, 0] = X[0, 1] * X[1, 2] - X[0, 2] * X[1, 1]
-        C[2, 1] = X[0, 2] * X[1, 0] - X[0, 0] * X[1, 2]
-        C[2, 2] = X[0, 0] * X[1, 1] - X[0, 1] * X[1, 0]
-        d = X[0, 0] * C[0, 0] + X[0, 1] * C[0, 1] + X[0, 2] * C[0, 2]
-        step = 0.0
-        for i in range(3):
-            for j in range(3):
-                y = 0.5 * (X[i, j] + C[i, j] / d)
-                step = max(step, abs(y - X[i, j]))
-                X[i, j] = y
-        if not step > 1e-15:
-            break
-    return X
-
-
-@numba.njit(cache=True, nogil=True)
-def kabsch3(M: np.ndarray) -> np.ndarray:
-    """The rotation R maximising trace(Rᵀ ``M``) (Kabsch: M = Σ bᵢ aᵢᵀ, R minimises Σ |R aᵢ − bᵢ|²), U diag(1, 1,
-    det(U Vᵀ)) Vᵀ of M's SVD: V and the singular values from :func:`sym_eigh` of MᵀM, U's first two columns M vᵢ
-    orthonormalised (Gram-Schmidt) and its third their cross product, the last column of V turned to make V
-    proper. M of rank at least 2."""
-    MtM = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            MtM[i, j] = M[0, i] * M[0, j] + M[1, i] * M[1, j] + M[2, i] * M[2, j]
-    _, V = sym_eigh(MtM)
-    v1 = V[:, 2].copy()
-    v2 = V[:, 1].copy()
-    v3 = V[:, 0].copy()
-    if det3(V) > 0.0:  # [v1 v2 v3] is V's columns reversed: its determinant is −det(V)
-        v3 = -v3
-    u1 = np.empty(3)
-    u2 = np.empty(3)
-    for i in range(3):
-        u1[i] = M[i, 0] * v1[0] + M[i, 1] * v1[1] + M[i, 2] * v1[2]
-        u2[i] = M[i, 0] * v2[0] + M[i, 1] * v2[1] + M[i, 2] * v2[2]
-    n1 = np.sqrt(u1[0] * u1[0] + u1[1] * u1[1] + u1[2] * u1[2])
-    for i in range(3):
-        u1[i] /= n1
-    d = u1[0] * u2[0] + u1[1] * u2[1] + u1[2] * u2[2]
-    for i in range(3):
-        u2[i] -= d * u1[i]
-    n2 = np.sqrt(u2[0] * u2[0] + u2[1] * u2[1] + u2[2] * u2[2])
-    for i in range(3):
-        u2[i] /= n2
-    u3 = np.array([u1[1] * u2[2] - u1[2] * u2[1], u1[2] * u2[0] - u1[0] * u2[2], u1[0] * u2[1] - u1[1] * u2[0]])
-    R = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            R[i, j] = u1[i] * v1[j] + u2[i] * v2[j] + u3[i] * v3[j]
-    return R
-
-
-@numba.njit(cache=True, nogil=True)
-def facing_mask(normals: np.ndarray, R: np.ndarray, view: np.ndarray) -> np.ndarray:
-    """(s,) bool: the model's samples of outward ``normals`` (s, 3) that face the camera seen along ``view`` when
-    posed by ``R``: n·w < 0 with w = Rᵀ ``view`` (both dot products summed in order)."""
-    w0 = R[0, 0] * view[0] + R[1, 0] * view[1] + R[2, 0] * view[2]
-    w1 = R[0, 1] * view[0] + R[1, 1] * view[1] + R[2, 1] * view[2]
-    w2 = R[0, 2] * view[0] + R[1, 2] * view[1] + R[2, 2] * view[2]
-    out = np.empty(len(normals), np.bool_)
-    for i in range(len(normals)):
-        out[i] = normals[i, 0] * w0 + normals[i, 1] * w1 + normals[i, 2] * w2 < 0.0
-    return out
-
-
-@numba.njit(cache=True, nogil=True)
-def facing_fronts(normals: np.ndarray, samples: np.ndarray, Rs: np.ndarray,
-                  view: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Per rotation ``Rs[g]`` (k, 3, 3): (the number of samples that face the camera (:func:`facing_mask`), their
-    coordinates' sums in the samples' order) as ((k,) int64, (k, 3))."""
-    counts = np.zeros(len(Rs), np.int64)
-    sums = np.zeros((len(Rs), 3))
-    for g in range(len(Rs)):
-        f = facing_mask(normals, Rs[g], view)
-        s0 = s1 = s2 = 0.0
-        m = 0
-        for i in range(len(samples)):
-            if f[i]:
-                s0 += samples[i, 0]
-                s1 += samples[i, 1]
-                s2 += samples[i, 2]
-                m += 1
-        counts[g] = m
-        sums[g, 0], sums[g, 1], sums[g, 2] = s0, s1, s2
-    return counts, sums
-
-
-@numba.njit(cache=True, nogil=True)
-def _line_sums(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float, float]:
-    n = len(x)
-    mx = my = 0.0
-    for i in range(n):
-        mx += x[i]
-        my += y[i]
-    mx /= n
-    my /= n
-    sxx = sxy = 0.0
-    for i in range(n):
-        dx = x[i] - mx
-        sxx += dx * dx
-        sxy += dx * (y[i] - my)
-    return mx, my, sxx, sxy
-
-
-def line_fit(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """(slope, intercept) of the least-squares line y ≈ slope x + intercept (``np.linalg.lstsq`` of [x, 1]), from
-    the centred sums (in the points' order: no LAPACK); x not constant."""
-    mx, my, sxx, sxy = _line_sums(np.ascontiguousarray(x, np.float64), np.ascontiguousarray(y, np.float64))
-    slope = sxy / sxx
-    return np.array([slope, my - slope * mx])
-
-
-@numba.njit(cache=True, nogil=True)
-def gram(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(Aᵀ A, Aᵀ b) of an (n, m) ``A`` and (n,) ``b``, each entry's products summed in the rows' order."""
-    n, m = A.shape
-    G = np.zeros((m, m))
-    h = np.zeros(m)
-    for i in range(n):
-        for u in range(m):
-            au = A[i, u]
-            h[u] += au * b[i]
-            for w in range(u, m):
-                G[u, w] += au * A[i, w]
-    for u in range(m):
-        for w in range(u):
-            G[u, w] = G[w, u]
-    return G, h
-
-
-def principal_axes(points: np.ndarray) -> np.ndarray:
-    """(3, 3) the points' principal axes as columns, ascending variance: :func:`sym_eigh` of
-    :func:`covariance3` (``np.linalg.eigh(np.cov(points.T))[1]`` up to the columns' signs)."""
-    _, ax = sym_eigh(covariance3(np.ascontiguousarray(points, np.float64)))
-    out: np.ndarray = ax
-    return out
+__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "occluding_boundary",
+           "surface_distances", "window_band", "window_pixels", "window_rays"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -808,16 +456,16 @@ def _rodrigues(w0: float, w1: float, w2: float) -> np.ndarray:
         return R
     k0, k1, k2 = w0 / a, w1 / a, w2 / a
     K = np.array([[0.0, -k2, k1], [k2, 0.0, -k0], [-k1, k0, 0.0]])
-    return R + np.sin(a) * K + (1.0 - np.cos(a)) * mat_mul(K, K)
+    return R + np.sin(a) * K + (1.0 - np.cos(a)) * (K @ K)
 
 
 @numba.njit(cache=True, nogil=True)
 def _stiff(H: np.ndarray, weak: float) -> bool:
     """Whether every eigenvalue of the symmetric positive semi-definite 6 × 6 ``H`` is surely at least ``weak`` ×
-    its largest, so that :func:`sym_eigh` would find no eigenvalue below ``weak`` × its largest (the
+    its largest, so that :func:`numpy.linalg.eigh` would find no eigenvalue below ``weak`` × its largest (the
     ICP's edges then act in no direction: the eigen-decomposition is not needed). A Cholesky factorisation of
     H − 2 ``weak`` trace(H) I that meets no pivot <= 0: the trace bounds the largest eigenvalue, the factor 2 is a
-    margin orders of magnitude above the rounding of both the factorisation and Jacobi's eigenvalues (~1e-15
+    margin orders of magnitude above the rounding of both the factorisation and LAPACK's eigenvalues (~1e-15
     × trace). False whenever in doubt (a NaN, a pivot <= 0): the caller then decomposes as before."""
     tr = 0.0
     for u in range(6):
@@ -851,9 +499,7 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
     :func:`zcut.fits.icp.icp` (surface matches gated and facing the camera, the occluding boundary's
     ``edge_points`` matched to the sharp edges in the directions the surface leaves free — those of
     eigenvalue below ``weak`` × the largest of the surface's normal matrix — Cauchy weights) with the
-    index's correspondences. (R, t, rms of the last step's matches, their number). Its linear algebra is this
-    module's own (:func:`sym_eigh`, :func:`solve_pivot`, :func:`mat_mul`, the last orthonormalisation :func:`polar3`):
-    no LAPACK or BLAS call, the same bits under every OpenBLAS kernel.
+    index's correspondences. (R, t, rms of the last step's matches, their number).
 
     ``robust_mm`` > 0: each surface match is weighted by Tukey's biweight of its distance d at that scale,
     (1 − (d / ``robust_mm``)²)², and none beyond it (re-weighted at every step: the last refinement's
@@ -1074,7 +720,7 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
             He[5, 5] = he55
             ge[0], ge[1], ge[2], ge[3], ge[4], ge[5] = ge0, ge1, ge2, ge3, ge4, ge5
             if ne >= 3 and not _stiff(H, weak):
-                ev, V = sym_eigh(H)
+                ev, V = np.linalg.eigh(H)
                 top = max(ev.max(), 1e-300)
                 P = np.zeros((6, 6))
                 nw = 0
@@ -1083,20 +729,21 @@ def icp_kernel(points: np.ndarray, R0: np.ndarray, t0: np.ndarray, iterations: i
                         P += np.outer(V[:, u], V[:, u])
                         nw += 1
                 if nw:
-                    H = H + mat_mul(mat_mul(P, He), P)
-                    g = g + mat_mul(P, ge.reshape(6, 1))[:, 0]
-        x = solve_pivot(H + 1e-12 * np.eye(6), -g) / scale
+                    H = H + P @ He @ P
+                    g = g + P @ ge
+        x = np.linalg.solve(H + 1e-12 * np.eye(6), -g) / scale
         dR = _rodrigues(x[0], x[1], x[2])
-        Rinv = mat_mul(dR, R.T)
-        tinv = mat_mul(dR, -mat_mul(R.T, t.reshape(3, 1)))[:, 0] + x[3:]
+        Rinv = dR @ R.T
+        tinv = dR @ (-(R.T @ t)) + x[3:]
         R = Rinv.T.copy()
-        t = -mat_mul(R, tinv.reshape(3, 1))[:, 0]
+        t = -(R @ tinv)
         rms = np.sqrt(ssq / n_used)
         gate = min(gate, max(k * rms, k * floor_mm, 0.5 * gate))
         # converged: the step moves no point of the model by a micron
         if max(np.abs(x[:3]).max() * extent, np.abs(x[3:]).max()) < 1e-3:
             break
-    R = polar3(R)
+    U, _, Vt = np.linalg.svd(R)
+    R = U @ Vt
     return R, t, rms, n_used
 
 

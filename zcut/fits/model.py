@@ -21,7 +21,7 @@ from zcut.errors import InputShapeError, ParameterError, describe_array
 from zcut.fit_vetting import Solid
 from zcut.ray_hits import mesh_hit_t
 
-from .kernels import ModelIndex, build_index, covariance3, det3, kabsch3, mat_mul, mm, norm3, sym_eigh
+from .kernels import ModelIndex, build_index
 
 __all__ = ["PartModel", "cube_root", "prepare_model"]
 
@@ -223,9 +223,8 @@ def _check_mesh(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray
     scale = float(np.ptp(v, axis=0).max())
     if not scale > 0 or area.sum() <= 1e-9 * scale * scale:
         raise ParameterError("part model is degenerate: its triangles have no area")
-    x = v - v.mean(axis=0)
-    ev = sym_eigh(mat_mul(np.ascontiguousarray(x.T), x))[0]  # the singular values' squares of x, ascending
-    if math.sqrt(max(float(ev[0]), 0.0)) <= 1e-6 * math.sqrt(max(float(ev[2]), 0.0)):
+    sv = np.linalg.svd(v - v.mean(axis=0), compute_uv=False)
+    if sv[2] <= 1e-6 * sv[0]:
         raise ParameterError("part model is degenerate: its vertices are flat (all in one plane)")
     return v, t
 
@@ -275,7 +274,7 @@ def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float,
         while j < n and same[j - 1]:
             j += 1
         fs = face[i:j]
-        if j - i == 1 or np.min(mm(nrm[fs], np.ascontiguousarray(nrm[fs].T))) < cos_thr:
+        if j - i == 1 or np.min(nrm[fs] @ nrm[fs].T) < cos_thr:
             sharp.append(key[i])
         i = j
     if not sharp:
@@ -293,21 +292,23 @@ def _sharp_edges(v: np.ndarray, t: np.ndarray, spacing: float,
 
 
 def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
-    axis = axis / norm3(axis)
+    axis = axis / np.linalg.norm(axis)
     K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * mm(K, K)
+    R: np.ndarray = np.eye(3) + np.sin(angle) * K + (1 - np.cos(angle)) * (K @ K)
     return R
 
 
 def _maps_onto_itself(R: np.ndarray, samples: np.ndarray, centroid: np.ndarray, tree: Any, tol: float) -> bool:
-    q = mm(samples - centroid, np.ascontiguousarray(R.T)) + centroid
+    q = (samples - centroid) @ R.T + centroid
     d, _ = tree.query(q, k=1)
     return bool(np.percentile(d, 95) <= tol)
 
 
 def _kabsch(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """The rotation R minimising Σ |R a_i − b_i|² (both centred already)."""
-    R: np.ndarray = kabsch3(mm(np.ascontiguousarray(b.T), a))
+    U, _, Vt = np.linalg.svd(b.T @ a)
+    D = np.diag([1.0, 1.0, float(np.sign(np.linalg.det(U @ Vt)))])
+    R: np.ndarray = U @ D @ Vt
     return R
 
 
@@ -319,9 +320,9 @@ def _refine_symmetry(R: np.ndarray, points: np.ndarray, centroid: np.ndarray, tr
     targets = points if targets is None else targets
     a = points - centroid
     for _ in range(8):
-        _, i = tree.query(mm(a, np.ascontiguousarray(R.T)) + centroid, k=1)
+        _, i = tree.query(a @ R.T + centroid, k=1)
         R = _kabsch(a, targets[i] - centroid)
-    d, _ = tree.query(mm(a, np.ascontiguousarray(R.T)) + centroid, k=1)
+    d, _ = tree.query(a @ R.T + centroid, k=1)
     return R, float(np.sqrt(np.mean(d * d)))
 
 
@@ -387,7 +388,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
         ax = axes[:, j]
         perp = axes[:, (j + 1) % 3]
         for a in np.linspace(0, np.pi, 72, endpoint=False):
-            h = mm(_rot(ax, a), perp)
+            h = _rot(ax, a) @ perp
             R = _rot(h, np.pi)
             if _maps_onto_itself(R, probe, centroid, tree, tol):
                 found.append(R)
@@ -406,7 +407,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
     taken: list[np.ndarray] = []
     exacts = [R for R, ok in refined if ok]
     for R, ok in refined:
-        if ok or not any(_angle_deg(mm(G.T, R)) < MERGE_DEG for G in exacts + taken):
+        if ok or not any(_angle_deg(G.T @ R) < MERGE_DEG for G in exacts + taken):
             taken.append(R)
     group: list[np.ndarray] = []
     for R in taken:
@@ -417,7 +418,7 @@ def _symmetries(samples: np.ndarray, vertices: np.ndarray, centroid: np.ndarray,
         changed = False
         for A in list(group):
             for B in list(group):
-                C = mm(A, B)
+                C = A @ B
                 if len(group) < 48 and not any(np.abs(C - G).max() < 1e-3 for G in group):
                     group.append(C)
                     changed = True
@@ -439,49 +440,6 @@ def _triangle_normals(v: np.ndarray, t: np.ndarray) -> np.ndarray:
     return nrm
 
 
-def _canonical_sign(a: np.ndarray) -> np.ndarray:
-    """``a`` or ``-a``: the one whose entry of largest magnitude (the first of equal ones) is positive."""
-    i = int(np.argmax(np.abs(a)))
-    return -a if a[i] < 0 else a
-
-
-def _symmetry_frame(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None) -> np.ndarray:
-    """The frame the guess templates are made in: the principal ``axes`` (columns, descending variance) turned
-    onto the symmetries' own axes where those fix them. The third column becomes the axis of the symmetry rotations
-    of the highest order (n >= 3: the smallest angle), the first the half-turn axis perpendicular to it nearest the
-    largest-variance axis (the first of equal ones), the second their cross product; each sign canonical (entry of
-    largest magnitude positive). A hexagonal nut's principal axes in its plane are any pair (its covariance there
-    is nearly isotropic: 1 % apart) and their signs whatever the eigen-solver gives; in its symmetries' frame every
-    sign flip of an axis is a half-turn of the group, so the templates' classes are the same whatever the signs of
-    the model's or of a region's axes (docs/fits.md, issue 29, branch h/blas2). A model without such an axis (none
-    of order >= 3), or a body of revolution, keeps its principal axes."""
-    if cont is not None or len(sym) < 3:
-        return axes
-    cosang = np.clip((np.trace(sym, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
-    skew = np.stack([sym[:, 2, 1] - sym[:, 1, 2], sym[:, 0, 2] - sym[:, 2, 0], sym[:, 1, 0] - sym[:, 0, 1]], axis=1)
-    turns = np.flatnonzero((cosang < np.cos(np.radians(1.0))) & (cosang > -0.5 - 1e-6))  # 0 < angle <= 120 deg
-    if not len(turns):
-        return axes
-    k = int(turns[np.argmax(cosang[turns])])
-    a3 = _canonical_sign(skew[k] / norm3(skew[k]))
-    halves: list[np.ndarray] = []
-    for S, c in zip(sym, cosang):
-        if c < -1.0 + 1e-6:  # a half-turn: its axis is any nonzero column of S + I
-            B = S + np.eye(3)
-            h = B[:, int(np.argmax(np.einsum("ij,ij->j", B, B)))]
-            h = h / norm3(h)
-            if abs(float((h * a3).sum())) < 1e-6:
-                halves.append(h)
-    if halves:
-        a1 = halves[int(np.argmax([abs(float((h * axes[:, 0]).sum())) for h in halves]))]
-    else:
-        a1 = axes[:, 0] - float((axes[:, 0] * a3).sum()) * a3
-        a1 = a1 / norm3(a1)
-    a1 = _canonical_sign(a1)
-    a2 = np.cross(a3, a1)
-    return np.stack([a1, a2, a3], axis=1)
-
-
 def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None) -> np.ndarray:
     """The initial rotations up to the region's axes X (the guess is X @ M): M = Rz(turn) P Aᵀ for
     the 24 proper signed permutations P, turns 0 and 45° about the region's least-variance axis, A
@@ -497,10 +455,10 @@ def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None)
             P = np.zeros((3, 3))
             for i, j in enumerate(perm):
                 P[i, j] = signs[i]
-            if det3(P) < 0:
+            if np.linalg.det(P) < 0:
                 continue
             for turn in (0.0, np.pi / 4):
-                M = mm(mm(_rot(np.array([0.0, 0.0, 1.0]), turn), P), axes.T)
+                M = _rot(np.array([0.0, 0.0, 1.0]), turn) @ P @ axes.T
                 (first if perm[2] == 2 else rest).append(M)
     kept: list[np.ndarray] = []
     variants = np.zeros((0, 3, 3))
@@ -508,7 +466,7 @@ def _guess_templates(axes: np.ndarray, sym: np.ndarray, cont: np.ndarray | None)
     for M in first + rest:
         if len(variants) and np.abs(variants - M).max(axis=(1, 2)).min() < 0.15:
             continue
-        if cont is not None and len(ax_seen) and float(mm(ax_seen, mm(M, cont)).max()) > 0.99:
+        if cont is not None and len(ax_seen) and float((ax_seen @ (M @ cont)).max()) > 0.99:
             continue
         kept.append(M)
         variants = np.concatenate([variants, np.einsum("ij,kjl->kil", M, sym)])
@@ -537,9 +495,10 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
     tol = sphere_tolerance * float(r.mean())
     sphere = float(r.mean()) if max(float(np.abs(r - r.mean()).max()), float(np.abs(rc - r.mean()).max())) <= tol \
         else None
-    w, axes = sym_eigh(covariance3(samples))
-    axes = axes[:, ::-1].copy()
-    if det3(axes) < 0:
+    cov = np.cov((samples - centroid).T)
+    w, axes = np.linalg.eigh(cov)
+    axes = axes[:, ::-1]
+    if np.linalg.det(axes) < 0:
         axes[:, 2] = -axes[:, 2]
     tree = cKDTree(samples)
     edges, seg0, seg1 = _sharp_edges(v, t, spacing=extent / 150.0)
@@ -565,6 +524,6 @@ def prepare_model(vertices_mm: np.ndarray, triangles: np.ndarray, *, sphere_tole
 
     return PartModel(vertices=v, triangles=t, centroid=centroid, sphere_radius=sphere, samples=samples,
                      normals=normals, axes=axes, extent_mm=extent, symmetries=sym, continuous_axis=cont,
-                     edges=edges, index=index, guesses=_guess_templates(_symmetry_frame(axes, sym, cont), sym, cont),
+                     edges=edges, index=index, guesses=_guess_templates(axes, sym, cont),
                      probe_samples=samples[probe], probe_normals=normals[probe], solid=solid,
                      _scene=scene, _tree=tree, _edge_tree=edge_tree)

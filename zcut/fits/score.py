@@ -6,7 +6,6 @@ import math
 
 import numpy as np
 
-from .kernels import mm, norm3
 from .model import PartModel, _angle_deg
 
 __all__ = ["pose_error"]
@@ -22,7 +21,7 @@ def pose_error(T_fit: np.ndarray, T_true: np.ndarray, model: PartModel) -> tuple
     rotation error.
     """
     c = model.centroid
-    dt = norm3((mm(T_fit[:3, :3], c) + T_fit[:3, 3]) - (mm(T_true[:3, :3], c) + T_true[:3, 3]))
+    dt = float(np.linalg.norm((T_fit[:3, :3] @ c + T_fit[:3, 3]) - (T_true[:3, :3] @ c + T_true[:3, 3])))
     if model.sphere_radius is not None:
         return dt, 0.0
     Rf, Rt = T_fit[:3, :3], T_true[:3, :3]
@@ -30,7 +29,7 @@ def pose_error(T_fit: np.ndarray, T_true: np.ndarray, model: PartModel) -> tuple
         a = model.continuous_axis
         best = np.inf
         for S in model.symmetries:
-            cosang = float(np.clip(mm(mm(mm(Rf, S), a), mm(Rt, a)), -1.0, 1.0))
+            cosang = float(np.clip((Rf @ S @ a) @ (Rt @ a), -1.0, 1.0))
             best = min(best, math.degrees(math.acos(cosang)))  # the C library's, not NumPy's SIMD kernel
         return dt, best
-    return dt, min(_angle_deg(mm(mm(Rt.T, Rf), S)) for S in model.symmetries)
+    return dt, min(_angle_deg(Rt.T @ Rf @ S) for S in model.symmetries)

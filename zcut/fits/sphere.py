@@ -14,23 +14,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kernels import gram, solve_pivot
-
 __all__ = ["algebraic_sphere", "refine_sphere", "vote_centres"]
 
 
 def algebraic_sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     """(centre (3,), radius) of the least-squares algebraic sphere through ``points`` (n >= 4)."""
     p = np.asarray(points, np.float64)
-    m = p.mean(axis=0)
-    q = p - m  # centred: |q|² = 2 c'·q + k' with c' = c − m, r² = k' + |c'|² (the same least squares)
-    A = np.ascontiguousarray(np.c_[2.0 * q, np.ones(len(q))])
-    b = np.einsum("ij,ij->i", q, q)
-    G, h = gram(A, b)  # the normal equations, solved by elimination (no LAPACK)
-    sol = solve_pivot(G, h)
+    A = np.c_[2.0 * p, np.ones(len(p))]
+    b = np.einsum("ij,ij->i", p, p)
+    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
     c = sol[:3]
-    r2 = sol[3] + float(c[0] * c[0] + c[1] * c[1] + c[2] * c[2])
-    return c + m, float(np.sqrt(max(r2, 0.0)))
+    r2 = sol[3] + c @ c
+    return c, float(np.sqrt(max(r2, 0.0)))
 
 
 def refine_sphere(points: np.ndarray, centre: np.ndarray, radius: float, *, iterations: int = 5) -> np.ndarray:
@@ -45,8 +40,7 @@ def refine_sphere(points: np.ndarray, centre: np.ndarray, radius: float, *, iter
             break
         J = -v[ok] / d[ok, None]
         r = d[ok] - radius
-        JtJ, Jtr = gram(np.ascontiguousarray(J), np.ascontiguousarray(r))
-        step = solve_pivot(JtJ + 1e-12 * np.eye(3), -Jtr)
+        step = np.linalg.solve(J.T @ J + 1e-12 * np.eye(3), -J.T @ r)
         c += step
         if np.abs(step).max() < 1e-9:
             break

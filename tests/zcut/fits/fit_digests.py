@@ -32,16 +32,17 @@ REAL_CROP = (slice(100, 300), slice(200, 440))
 #: eleventh round's tree (e7420cc), the zinc nuts' since the twelfth's (846dad4), all eight since the thirteenth's
 #: (c94bf05). A round that changes the defaults' fits records the new ones here.
 DEFAULTS = {
-    ("zinc_nuts", False): (235, "5fe5868c33cbfa37"), ("zinc_nuts", True): (101, "41b1e814f172bc28"),
-    ("spheres", False): (295, "29ba0b2581ac8f94"), ("spheres", True): (142, "34d1bd89e9505815"),
-    ("rods", False): (60, "5bc1f439f0277e26"), ("rods", True): (28, "5afbfc078df558c9"),
-    ("black_nuts", False): (269, "146aa1ce40c6bdbb"), ("black_nuts", True): (129, "94e5b21929181ae0"),
-}  # all eight re-made in 2026-12-07f (h/blas): the fits' linear algebra is their own (zcut.fits.kernels: Jacobi
-# eigen-decompositions, a pivoting solve, the polar factor, no BLAS or LAPACK), the same bits under every OpenBLAS
-# kernel (SkylakeX, Haswell, Sandy Bridge measured) and numpy dispatch; before: 241 3d62a8a4…, 98 91e10c51…, 295
-# b143b7f8…, 142 58513c88…, 62 884b0717…, 28 0e4c6b60…, 283 39f35a01…, 133 69eaf5c0… (this CPU's OpenBLAS kernels only)
+    ("zinc_nuts", False): (241, "3d62a8a46cb79e55"), ("zinc_nuts", True): (98, "91e10c51207c49e3"),
+    ("spheres", False): (295, "b143b7f869121cda"), ("spheres", True): (142, "58513c887e33144f"),
+    ("rods", False): (62, "884b0717a55ce24c"), ("rods", True): (28, "0e4c6b60c2be0bf9"),
+    ("black_nuts", False): (283, "39f35a01a616c513"), ("black_nuts", True): (133, "69eaf5c08aa7cde3"),
+}  # nuts and rods re-made in 2026-12-06g (h/mesh): their part models no longer take np.arctan2's AVX-512 last bits
+# not re-made in 2026-12-07a (h/cbrt): the model index's voxel size is now a correctly rounded cube root, not np.cbrt,
+# whose AVX-512 kernel gave these bits and numpy at AVX2 or baseline others; now every numpy dispatch gives these (not
+# yet every OpenBLAS kernel: docs/fits.md, "The fits independent of numpy's CPU dispatch")
 #: ... and of :func:`real_crop` (the hand-made nut model), since the twelfth round's tree
-DEFAULTS_REAL = (141, "739b50e6d1491101")  # re-made in 2026-12-07f (h/blas), as DEFAULTS (before: 147 97e9547e…)
+DEFAULTS_REAL = (147, "97e9547eac12522b")  # re-made in 2026-12-06g (h/mesh): the nut model, as DEFAULTS; kept in
+# 2026-12-07a (h/cbrt), as DEFAULTS: the same at every numpy dispatch now
 
 
 def digest(fits: list[PartFit]) -> str:

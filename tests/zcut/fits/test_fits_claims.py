@@ -111,19 +111,16 @@ def _digest(fits: list[PartFit]) -> list[tuple[str, str, int, str]]:
 #: docs/fits.md "The part meshes built the same on every CPU"): the nut's scenes moved to the set made at the merge
 #: of h/fitray with numpy kept to AVX2, which every CPU now gives (the spheres' scene has no nut and did not move)
 OLD = {
-    "nut_bar": [("0.0005018910480189125", "1.0", 447, "906467f66880509b"),
-                ("0.0007656224817269467", "1.0", 397, "60def9b332317e99")],
-    "sphere_bar": [("0.002460114693896868", "1.0", 368, "4276fc898c9251f8"),
-                   ("0.002460114693896869", "1.0", 368, "11eb553ce747c3f6")],
-    "three_nuts": [("0.03900134112868317", "0.9965694682675815", 571, "76a48872432cf635"),
-                   ("0.04193715973589023", "0.988835725677831", 609, "cc62b34ad334d8cd"),
-                   ("0.0011126269501466103", "1.0", 687, "61eb480d78625974")],
-    "occluded": [("0.0008183212342531139", "1.0", 782, "0c26629d243d50cf"),
-                 ("0.0055894751582664295", "0.9943181818181818", 175, "b15a222d337ba108")],
-}  # re-made in 2026-12-07f (h/blas): the fits' own linear algebra (zcut.fits.kernels), the same bits under every
-# OpenBLAS kernel. Before: nut_bar 703 + 141 px (Err 0.0034, 0.0117), now 447 + 397 (the same 844 px split between its
-# two fits otherwise); sphere_bar the last bits of Err; three_nuts the same pixels, the third fit's Err 0.0024 -> 0.0011;
-# occluded the same pixels, Err 0.0006 / 0.0012 -> 0.0008 / 0.0056, the second's support 1.0 -> 0.994
+    "nut_bar": [("0.0033551694925739394", "1.0", 703, "6a87e271ab8b7054"),
+                ("0.011729625347018957", "1.0", 141, "e1bf1c2721eba5b5")],
+    "sphere_bar": [("0.002460114693896882", "1.0", 368, "fdcd4698d24c0576"),
+                   ("0.0024601146938968777", "1.0", 368, "6560f47c12f6bafc")],
+    "three_nuts": [("0.03900134112868317", "0.9965694682675815", 571, "6671c319e6352f04"),
+                   ("0.04193715973589023", "0.988835725677831", 609, "9345c7754c03af22"),
+                   ("0.002374508250429824", "0.9970972423802612", 687, "b321d2bc70bea929")],
+    "occluded": [("0.0005805336332660733", "1.0", 782, "fd01b1bb0431aed0"),
+                 ("0.0012055788643325165", "1.0", 175, "290b6714228e99c8")],
+}
 
 
 def test_claim_false_gives_the_previous_fits_to_the_bit():

@@ -1,10 +1,7 @@
 """The fits do not depend on numpy's CPU dispatch (docs/fits.md, "The fits independent of numpy's CPU dispatch"):
 the model index's voxel size is a correctly rounded cube root (:func:`zcut.fits.model.cube_root`), not ``np.cbrt``,
 whose AVX-512 kernel rounds apart from the AVX2 and baseline kernels (the C library's), so a pinned fit comes out the
-same with numpy kept to AVX2 as with numpy as is; and the fits' 3 × 3 and 6 × 6 linear algebra and their large sums are
-their own loops (:mod:`zcut.fits.kernels`; docs/fits.md, "The fits' bytes the same under every OpenBLAS kernel"), no
-BLAS or LAPACK call, so a pinned fit comes out the same under OpenBLAS's Sandy Bridge kernels as under this CPU's. The
-whole pins at every level: bench/bench_fits_dispatch.py."""
+same with numpy kept to AVX2 as with numpy as is. The whole pins at every level: bench/bench_fits_dispatch.py."""
 
 from __future__ import annotations
 
@@ -26,9 +23,6 @@ from zcut.fits.model import _angle_deg, cube_root
 ROOT = Path(__file__).resolve().parents[3]
 #: numpy's dispatch kept to AVX2 (X86_V3) on a CPU with AVX-512 (tests/replay/synth/test_part_meshes_cpu.py's)
 NUMPY_AT_AVX2 = {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL AVX512_SPR"}
-#: OpenBLAS's kernels for a CPU without FMA or AVX2 (numpy's copy and SciPy's, which numba's LAPACK would call): the
-#: farthest from this CPU's, every LAPACK call and large matrix product gave other bits under them (docs/fits.md)
-BLAS_SANDYBRIDGE = {"OPENBLAS_CORETYPE": "Sandybridge"}
 
 #: The voxel size (mm) of the hand-made nut's and rod's model index, the correctly rounded cube root every CPU now
 #: gives. The start tree took numpy's ``np.cbrt``: these bits on a CPU with AVX-512 and the C library's ``cbrt``
@@ -38,40 +32,30 @@ INDEX_H = {"zinc_nuts": "0x1.20c367a25594cp-2", "rods": "0x1.aac16410630e9p-2"}
 _CHILD = """
 import json, math, sys
 import numpy as np
-import scipy.linalg  # noqa: F401  (SciPy's OpenBLAS loaded, as numba's LAPACK would load it)
-from threadpoolctl import threadpool_info
 from fit_digests import digest, part_model
 from zcut.fits import fit_prepared
 x = np.linspace(0.01, 50.0, 2001)  # numpy's own cbrt: the C library's unless its AVX-512 kernel runs
 cbrt_is_libms = np.cbrt(x).tobytes() == np.array([math.cbrt(v) for v in x]).tobytes()
-cores = sorted({str(d.get("architecture")) for d in threadpool_info() if d.get("internal_api") == "openblas"})
 xyz, zone = np.load(sys.argv[1]), np.load(sys.argv[2])
 fits = fit_prepared(xyz, zone, part_model("rods"), intrinsics=tuple(json.loads(sys.argv[3])))
-print(json.dumps({"cbrt is libm's": cbrt_is_libms, "openblas": cores, "fits": [len(fits), digest(fits)]}))
+print(json.dumps({"cbrt is libm's": cbrt_is_libms, "fits": [len(fits), digest(fits)]}))
 """
 
 
-@pytest.mark.parametrize("setting", ["numpy at AVX2", "OpenBLAS Sandy Bridge"])
-def test_a_pin_is_the_same_with_numpy_kept_to_avx2_or_openblas_for_sandy_bridge(tmp_path: Path, setting: str) -> None:
-    """The holed rods' pin (``DEFAULTS[("rods", True)]``, the cheapest that showed both faults: the start tree of
-    2026-12-07a gave ``f7b048be6cb2f3a6`` at AVX2, the tree of 2026-12-07d ``d8a0e865…`` under OpenBLAS's Haswell
-    kernels and another digest under Sandy Bridge's) fitted in a process with numpy kept to AVX2, or with OpenBLAS's
-    Sandy Bridge kernels (numpy's copy and SciPy's): the model prepared there, the frame this session's; the check
-    that the variable took. ~8 CPU-s each (the process's imports and the rod model's preparation ~6.5, the fits ~1)."""
+def test_a_pin_is_the_same_with_numpy_kept_to_avx2(tmp_path: Path) -> None:
+    """The holed rods' pin (``DEFAULTS[("rods", True)]``, the cheapest that showed the fault: the start tree gave
+    ``f7b048be6cb2f3a6`` at AVX2) fitted in a process with numpy kept to AVX2: the model prepared there, the frame
+    this session's. ~8 CPU-s (the process's imports and the rod model's preparation ~6.5, the fits ~1)."""
     xyz, zone, _, K = hand_made("rods")
     np.save(tmp_path / "xyz.npy", holed(xyz))
     np.save(tmp_path / "zone.npy", zone)
     path = os.pathsep.join([str(ROOT), str(ROOT / "tests" / "zcut" / "fits"), str(ROOT / "tests")])
-    env = NUMPY_AT_AVX2 if setting == "numpy at AVX2" else BLAS_SANDYBRIDGE
     p = subprocess.run([sys.executable, "-c", _CHILD, str(tmp_path / "xyz.npy"), str(tmp_path / "zone.npy"),
                         json.dumps(K)], cwd=ROOT, capture_output=True, text=True, check=False,
-                       env={**os.environ, **env, "PYTHONPATH": path})
+                       env={**os.environ, **NUMPY_AT_AVX2, "PYTHONPATH": path})
     assert p.returncode == 0, p.stderr[-3000:]
     out = json.loads(p.stdout.strip().splitlines()[-1])
-    if setting == "numpy at AVX2":
-        assert out["cbrt is libm's"]  # the variable took (on a CPU without AVX-512 it is so anyway)
-    else:
-        assert out["openblas"] == ["Sandybridge"]  # both copies took it
+    assert out["cbrt is libm's"]  # the variable took (on a CPU without AVX-512 it is so anyway)
     assert tuple(out["fits"]) == DEFAULTS[("rods", True)]
 
 

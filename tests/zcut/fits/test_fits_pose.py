@@ -21,8 +21,8 @@ NUT = pose(rotation((1, 0.3, 0), 25) @ rotation((0, 0, 1), 20), (0, 0, 300))
 #: the ninth round's fits (the tree 849b5ca, its defaults) of a hand-made zinc-nut frame, seed 5, 480 × 300:
 #: (number of fits, sha256 of their poses and pixels); the tenth round's defaults gave the same (its early refusal,
 #: ``early_share``, was off by default and is gone since round 2026-12-06c)
-NINTH = (232, "1a0608e7c40a3dea")  # re-made in 2026-12-07f (h/blas): the fits' own linear algebra, the same bits
-# under every OpenBLAS kernel (fit_digests.DEFAULTS; before: 236 3461e625b85c645d, this CPU's OpenBLAS kernels only)
+NINTH = (236, "3461e625b85c645d")  # re-made in 2026-12-06g (h/mesh): the nut model lost np.arctan2's AVX-512 bits;
+# kept in 2026-12-07a (h/cbrt): numpy at AVX2 gave 5bc17315bb99cc8d (np.cbrt), now these bits (fit_digests.DEFAULTS)
 
 
 def _frame(xyz: np.ndarray, zone: np.ndarray) -> F._Frame:
