@@ -5,9 +5,9 @@ the same frames in one process (issue 29: where the fits' own linear algebra los
         [--sensor handmade] [--variants old,J:D0,J:D1,J:D2,J:D3,C:D0,J:main,L:D0,L:main] [--cache DIR] \\
         [--trace FRAME:INSTANCE] [--json OUT]
 
-Runs in a tree whose fits have their own principal axes (``zcut.fits.fit.principal_axes``: fbdd9d0, and on branch
-h/blas2 its pick a47c778 and the symmetry frame bc99e14; reverted, docs/fits.md). ``--old``: a ``git archive`` of the older tree (main), imported as bench/bench_fits_blas.py does.
-A variant ``RULE:MODEL`` fits with this tree's code and:
+Runs in a tree whose zcut/fits/fit.py has its own ``principal_axes`` (fbdd9d0, and on branch h/blas2 its pick a47c778
+and the symmetry frame bc99e14; all reverted, docs/fits.md). ``--old``: a ``git archive`` of the older tree (main),
+imported as bench/bench_fits_blas.py does. A variant ``RULE:MODEL`` fits with this tree's code and:
 
 - ``RULE``, the signs of each region's axes: ``J`` as this tree computes them (``sym_eigh``: each vector's entry of
   largest magnitude positive), ``L`` LAPACK's (``np.linalg.eigh`` of ``np.cov`` of the centred points, main's call),
