@@ -444,45 +444,28 @@ def _fallback(x: np.ndarray, y: np.ndarray, z: np.ndarray, valid: np.ndarray, ro
 # statistics
 # --------------------------------------------------------------------------------------------
 @nb.njit(cache=True, inline="always")
-def _row_terms(dr, vr, open3d, row):  # type: ignore[no-untyped-def]  # numba kernel
-    # row[c] := what pixel c of the row's d̄ ``dr`` (valid ``vr``) adds to the sum of d̄: d̄ where it
-    # is summed, +0.0 elsewhere (a select the compiler vectorizes: no branch, no arithmetic on what
-    # invalid pixels hold)
-    for c in range(dr.shape[0]):
-        d = dr[c]
-        row[c] = d if vr[c] & ((not open3d) | (d > 0.0)) else 0.0
+def _row_terms(dbar, valid, open3d, r, row):  # type: ignore[no-untyped-def]  # numba kernel
+    # row[c] := what pixel (r, c) adds to the sum of d̄: d̄ where it is summed, +0.0 elsewhere (a
+    # select the compiler vectorizes: no branch, no arithmetic on what invalid pixels hold)
+    for c in range(valid.shape[1]):
+        d = dbar[r, c]
+        row[c] = d if valid[r, c] & ((not open3d) | (d > 0.0)) else 0.0
 
 
 @nb.njit(cache=True, inline="always")
-def _row_deviations(dr, vr, open3d, mean, row):  # type: ignore[no-untyped-def]  # numba kernel
-    # row[c] := what pixel c of the row adds to the sum of squared deviations: (d̄ - mean)² where it
-    # is summed, +0.0 elsewhere (selected after the arithmetic: with a mean of inf, (mean - mean)²
-    # is NaN)
-    for c in range(dr.shape[0]):
-        d = dr[c]
-        summed = vr[c] & ((not open3d) | (d > 0.0))
+def _row_deviations(dbar, valid, open3d, r, mean, row):  # type: ignore[no-untyped-def]  # numba kernel
+    # row[c] := what pixel (r, c) adds to the sum of squared deviations: (d̄ - mean)² where it is
+    # summed, +0.0 elsewhere (selected after the arithmetic: with a mean of inf, (mean - mean)² is NaN)
+    for c in range(valid.shape[1]):
+        d = dbar[r, c]
+        summed = valid[r, c] & ((not open3d) | (d > 0.0))
         t = d if summed else mean
         v = (t - mean) * (t - mean)
         row[c] = v if summed else 0.0
 
 
 @nb.njit(cache=True)
-def _full_span(valid):  # type: ignore[no-untyped-def]  # numba kernel
-    # every row's span as the whole row (the callers that have no spans)
-    span = np.empty((valid.shape[0], 2), np.int64)
-    span[:, 0] = 0
-    span[:, 1] = valid.shape[1] - 1
-    return span
-
-
-@nb.njit(cache=True)
 def _mean_std(dbar, valid, n, open3d):  # type: ignore[no-untyped-def]  # numba kernel
-    # :func:`_mean_std_spans` over whole rows
-    return _mean_std_spans(dbar, valid, _full_span(valid), n, open3d)
-
-
-@nb.njit(cache=True)
-def _mean_std_spans(dbar, valid, span, n, open3d):  # type: ignore[no-untyped-def]  # numba kernel
     # mean and std of the statistics (see _outlier_masks): each sum one accumulator over the summed
     # values in row-major order. A row's terms are made first (:func:`_row_terms`,
     # :func:`_row_deviations`: a vectorized select, +0.0 where a pixel is not summed), then added
@@ -491,61 +474,40 @@ def _mean_std_spans(dbar, valid, span, n, open3d):  # type: ignore[no-untyped-de
     # the sums are those of adding only the summed values, in the same order, bit for bit. (Adding
     # d̄ if summed else 0.0 in one loop compiles to a branch per pixel, which valid pixels at random
     # mispredict; gathering each row's summed values to the front of a buffer, what this did before,
-    # made each pass ~3 times slower once the frame is out of the cache.) For the same reason only
-    # the columns span[r, 0] .. span[r, 1] of row r are read (a row with no valid pixel outside
-    # them: their +0.0 would leave the sums as they are); first > last: the row is passed by.
+    # made each pass ~3 times slower once the frame is out of the cache.)
     H, W = valid.shape
     row = np.empty(W)
     s = 0.0
     for r in range(H):
-        c0 = span[r, 0]
-        c1 = max(span[r, 1] + 1, c0)  # (first > last: an empty row)
-        # (the row's slices and a buffer from 0: with the span's bounds as the loops' own, the
-        # compiler does not vectorize the select)
-        _row_terms(dbar[r, c0:c1], valid[r, c0:c1], open3d, row)
-        for c in range(c1 - c0):
+        _row_terms(dbar, valid, open3d, r, row)
+        for c in range(W):
             s = s + row[c]
     mean = s / n
     sq = 0.0
     for r in range(H):
-        c0 = span[r, 0]
-        c1 = max(span[r, 1] + 1, c0)
-        _row_deviations(dbar[r, c0:c1], valid[r, c0:c1], open3d, mean, row)
-        for c in range(c1 - c0):
+        _row_deviations(dbar, valid, open3d, r, mean, row)
+        for c in range(W):
             sq = sq + row[c]
     return mean, math.sqrt(sq / (n - 1))
 
 
 @nb.njit(cache=True)
 def _outlier_masks(dbar, valid, n, ratios, open3d):  # type: ignore[no-untyped-def]  # numba kernel
-    # :func:`_outlier_masks_spans` over whole rows
-    return _outlier_masks_spans(dbar, valid, _full_span(valid), n, ratios, open3d)
-
-
-@nb.njit(cache=True)
-def _outlier_masks_spans(dbar, valid, span, n, ratios, open3d):  # type: ignore[no-untyped-def]  # numba kernel
     # pcl: d̄ > mean + ratio * std, sample std (n - 1), sequential sums in row-major order.
     # open3d (PointCloud::RemoveStatisticalOutliers): the sums run over d̄ > 0 only but divide by
-    # the count of ALL points; inlier iff 0 < d̄ < threshold (strict). ``span[r]``: the first and
-    # last column of row r that may be valid (:func:`_prepare`'s; first > last: none); every pixel
-    # outside them is invalid, hence not an outlier, and is not read.
+    # the count of ALL points; inlier iff 0 < d̄ < threshold (strict).
     H, W = valid.shape
-    mean, std = _mean_std_spans(dbar, valid, span, n, open3d)
-    out = np.zeros((ratios.shape[0], H, W), np.bool_)
+    mean, std = _mean_std(dbar, valid, n, open3d)
+    out = np.empty((ratios.shape[0], H, W), np.bool_)
     for i in range(ratios.shape[0]):
         thr = mean + ratios[i] * std
         for r in range(H):
-            c0 = span[r, 0]
-            c1 = max(span[r, 1] + 1, c0)
-            dr = dbar[r, c0:c1]
-            vr = valid[r, c0:c1]
-            o = out[i, r, c0:c1]
-            for c in range(c1 - c0):
-                d = dr[c]
+            for c in range(W):
+                d = dbar[r, c]
                 if open3d:
-                    o[c] = vr[c] & ~((d > 0.0) & (d < thr))
+                    out[i, r, c] = valid[r, c] & ~((d > 0.0) & (d < thr))
                 else:
-                    o[c] = vr[c] & (d > thr)
+                    out[i, r, c] = valid[r, c] & (d > thr)
     return out
 
 
@@ -692,4 +654,4 @@ def sor_outliers(xyz: XYZ, *, k: int = 4, std_ratio: float = 1.0, convention: st
         m = k + 1 if convention == "pcl" else k
         dbar = _mean_distances(x, y, z, valid, span, amax, m, float(k), run, ws)
         # the masks are made by the kernel: the caller's, never workspace arrays
-        return _outlier_masks_spans(dbar, valid, span, float(n), np.array([ratio]), convention == "open3d")[0]
+        return _outlier_masks(dbar, valid, float(n), np.array([ratio]), convention == "open3d")[0]
