@@ -42,7 +42,9 @@ code's masks are this code's bit for bit. The load average is printed before and
 Where the time of a call goes: ``--phases`` prints, per class and convention, the medians over --repeat
 calls (after a first one) of the CPU ms of the call, of every kernel it runs on its threads and of the
 steps around them (the camera fit, the tables, the fallback searches, the outlier masks), timed by
-wrapping them in this process; for one thread prefix ``NUMBA_NUM_THREADS=1``.
+wrapping them in this process; for one thread prefix ``NUMBA_NUM_THREADS=1``. With ``--stage LOG.mcap`` (and
+``--frames N``) the same for the pipeline's SOR stage on the log's frames, CPU ms a frame (for the previous code
+run this file with ``PYTHONPATH=OLD_TREE``).
 
 Page faults a call: ``--faults row`` (calls in a row) or ``--faults open3d`` (Open3D's filter
 between the calls, as in the classes' rounds) prints, per class and convention, the medians over
@@ -645,22 +647,13 @@ def faults_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
     return 0
 
 
-def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int) -> int:
-    """Per class and convention: where the CPU time of a ``sor_outliers`` call goes (medians of
-    --repeat calls after a first one, CPU ms of all threads): every kernel the call runs on its
-    threads (``run: NAME``, see ``zcut.sor._workers``) and the steps around them, timed by wrapping
-    them in this process. The steps nest (``_mean_distances`` holds the window phase and the fallback,
-    ``_fallback`` the tile and column searches), so the column does not add up."""
-    import collections
+def _timed_parts(spent: dict[str, float]) -> None:
+    """Wrap zcut.sor's thread runner (every kernel it runs: ``run: NAME``) and the steps around the kernels so that
+    each adds its CPU seconds (all threads, ``time.process_time``) to ``spent[NAME]`` (this process only)."""
     import contextlib
 
-    import numba
-
-    import zcut
     import zcut.sor as sor
     from zcut import columns, sor_camera, sor_search, sor_window
-
-    spent: collections.defaultdict[str, float] = collections.defaultdict(float)
 
     def timed(module: object, name: str) -> None:
         fn = getattr(module, name)
@@ -670,7 +663,7 @@ def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
             try:
                 return fn(*args, **kw)
             finally:
-                spent[name] += time.process_time() - t0
+                spent[name] = spent.get(name, 0.0) + time.process_time() - t0
 
         setattr(module, name, wrapper)
 
@@ -682,17 +675,34 @@ def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
             def timed_run(kernel, n, *args):
                 t0 = time.process_time()
                 run(kernel, n, *args)
-                spent["run: " + getattr(kernel, "__name__", repr(kernel))] += time.process_time() - t0
+                key = "run: " + getattr(kernel, "__name__", repr(kernel))
+                spent[key] = spent.get(key, 0.0) + time.process_time() - t0
 
             yield timed_run
 
     sor._workers = timed_workers
+    masks = "_outlier_masks_spans" if hasattr(sor, "_outlier_masks_spans") else "_outlier_masks"
     for module, name in ((sor, "_prepare"), (sor, "_mean_distances"), (sor, "_fallback"), (sor, "_column_stage"),
-                         (sor, "_outlier_masks"), (sor_camera, "fit_camera"), (sor_camera, "band_tables"),
+                         (sor, masks), (sor_camera, "fit_camera"), (sor_camera, "band_tables"),
                          (sor_camera, "corner_tables"), (sor_window, "unproven_pixels"), (sor_search, "build_quadtree"),
                          (sor_search, "valid_range"), (columns, "mark_columns"), (columns, "count_columns"),
                          (columns, "fill_columns")):
         timed(module, name)
+
+
+def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: int) -> int:
+    """Per class and convention: where the CPU time of a ``sor_outliers`` call goes (medians of
+    --repeat calls after a first one, CPU ms of all threads): every kernel the call runs on its
+    threads (``run: NAME``, see ``zcut.sor._workers``) and the steps around them, timed by wrapping
+    them in this process. The steps nest (``_mean_distances`` holds the window phase and the fallback,
+    ``_fallback`` the tile and column searches), so the column does not add up."""
+    import numba
+
+    import zcut
+    import zcut.sor as sor
+
+    spent: dict[str, float] = {}
+    _timed_parts(spent)
     warm_up(k)
     print(f"zcut {Path(zcut.__file__).parent}, {numba.config.NUMBA_NUM_THREADS} threads, CPU ms of a sor_outliers "
           f"call and of its parts, medians of {repeat} calls after a first one; load average {load_average()}")
@@ -712,6 +722,38 @@ def phases_main(classes: dict[str, object], k: int, std_ratio: float, repeat: in
             keys = sorted(set().union(*rows), key=lambda key: -float(np.median([r.get(key, 0.0) for r in rows])))
             parts = ", ".join(f"{key} {1e3 * float(np.median([r.get(key, 0.0) for r in rows])):.1f}" for key in keys)
             print(f"{name:26s} {convention:6s} {parts}", flush=True)
+    print(f"load average at the end: {load_average()}")
+    return 0
+
+
+def stage_phases_main(log: Path, repeat: int, frames: int = 0) -> int:
+    """Where the CPU time of the pipeline's SOR stage goes on the frames of ``log`` (``--stage LOG --phases``): per
+    kernel and step (as :func:`phases_main`), CPU ms a frame (the sum over the frames, divided by their number),
+    medians of --repeat passes over the frames after a first one."""
+    import numba
+
+    import zcut
+
+    zones = stage_zones(log, frames)
+    spent: dict[str, float] = {}
+    _timed_parts(spent)
+    print(f"zcut {Path(zcut.__file__).parent}, {numba.config.NUMBA_NUM_THREADS} threads; the SOR stage of {log} "
+          f"({len(zones)} frames): CPU ms a frame of the stage and of its parts, medians of {repeat} passes after a "
+          f"first one; load average {load_average()}")
+    passes: list[dict[str, float]] = []
+    for _ in range(repeat + 1):
+        total: dict[str, float] = {}
+        for item in zones:
+            spent.clear()
+            t, _mask = time_stage(item)
+            for key, value in {"stage": t, **spent}.items():
+                total[key] = total.get(key, 0.0) + value
+        passes.append(total)
+    passes = passes[1:]
+    keys = sorted(set().union(*passes), key=lambda key: -float(np.median([p.get(key, 0.0) for p in passes])))
+    for key in keys:
+        values = [1e3 * p.get(key, 0.0) / len(zones) for p in passes]
+        print(f"{key:28s} {float(np.median(values)):8.2f}   ({', '.join(f'{v:.2f}' for v in values)})")
     print(f"load average at the end: {load_average()}")
     return 0
 
@@ -747,6 +789,8 @@ def main() -> int:
     configure_process()
     if args.serve:
         return _serve()
+    if args.stage and args.phases:
+        return stage_phases_main(args.stage, args.repeat, args.frames)
     if args.stage:
         return stage_main(args.stage, args.against, args.repeat, args.frames)
     if args.phases:
