@@ -108,6 +108,14 @@ SLIVER_REFINE = 8
 #: ... and a pose whose silhouette the camera saw through on more than this share of its pixels is refused (free
 #: space: :attr:`zcut.sliver_fits.SliverParams.max_see_through`; docs/labelling.md, "Eighteenth round")
 SLIVER_MAX_SEE_THROUGH = 0.05
+#: ... that share read without the silhouette's outer this many rings of pixels
+#: (:attr:`zcut.sliver_fits.SliverParams.free_inset_px`) and, when True, without the scan's depth-edge pixels
+#: (:attr:`zcut.sliver_fits.SliverParams.free_skip_edges`; docs/labelling.md, "Twenty-first round")
+SLIVER_FREE_INSET_PX = 0
+SLIVER_FREE_SKIP_EDGES = False
+#: ... and, when True, the regions cut at the scan's depth edges before they are sized and posed
+#: (:attr:`zcut.sliver_fits.SliverParams.split_edges`; docs/labelling.md, "Twenty-second round")
+SLIVER_SPLIT_EDGES = False
 
 
 @dataclass(frozen=True, slots=True)
@@ -413,7 +421,10 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
     found = fit_slivers(xyz, np.isfinite(xyz).all(axis=2), un, prepared, np.stack([f.pose for f in fits]),
                         sigma_mm=sigma, intrinsics=intr,
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
-                                            refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH, k=float(p.k),
+                                            refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH,
+                                            free_inset_px=SLIVER_FREE_INSET_PX, free_skip_edges=SLIVER_FREE_SKIP_EDGES,
+                                            split_edges=SLIVER_SPLIT_EDGES,
+                                            k=float(p.k),
                                             floor_mm=float(p.err_floor_mm)))
     if not found:
         return fits, surfaces, near, 0
