@@ -120,9 +120,10 @@ SLIVERS: list[tuple[float, ...]] | None = None
 #: ``--free-space I:E,…`` (with ``--slivers``, one a variant, in order): the pass's free-space share read without the
 #: silhouette's outer I rings (``SLIVER_FREE_INSET_PX``) and, E = 1, without the scan's depth edges
 #: (``SLIVER_FREE_SKIP_EDGES``); a variant's name then ends in ``_freeI`` (E = 0) or ``_freeIe``. None: the tree's
-#: (docs/labelling.md, "Twenty-first round"). ``I:E:S`` with S = 1 also cuts the pass's regions at the scan's depth
-#: edges (``SLIVER_SPLIT_EDGES``), the name then ending in ``s`` (``_free2es``; docs/labelling.md, "Twenty-second round").
-FREE: list[tuple[int, bool] | tuple[int, bool, bool]] | None = None
+#: (docs/labelling.md, "Twenty-first round"). ``I:E:S`` with S > 0 also cuts the pass's regions at the scan's depth
+#: steps of more than S footprints (``SLIVER_SPLIT_STEPS``), the name then ending in ``sS`` (``_free2es10``;
+#: docs/labelling.md, "Twenty-third round").
+FREE: list[tuple[int, bool] | tuple[int, bool, float]] | None = None
 #: ``--no-causes`` (``--diagnose`` only): each frame scored without the scene's true surfaces (no cause split)
 NO_CAUSES = False
 
@@ -804,7 +805,7 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
     bin_model = session.prepared.model if session.prepared is not None else None
     saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE,
              rex.SLIVER_MAX_SEE_THROUGH, rex._with_slivers)
-    saved_free = (rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_EDGES)
+    saved_free = (rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_STEPS)
     if free is not None and len(free) != len(variants):
         raise ValueError(f"--free-space takes one I:E[:S] a --slivers variant ({len(variants)}), got {len(free)}")
     spent = [0.0]
@@ -821,10 +822,10 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
     try:
         for j, v in enumerate(variants):
             n_px, m, c, r = (int(x) for x in (*v, 0, 1)[:4])
-            fj = saved_free if free is None else (*free[j], False)[:3]
-            rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_EDGES = fj
+            fj = saved_free if free is None else (*free[j], 0.0)[:3]
+            rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_STEPS = fj
             name = sliver_name(v) if free is None else \
-                f"{sliver_name(v)}_free{fj[0]}{'e' if fj[1] else ''}{'s' if fj[2] else ''}"
+                f"{sliver_name(v)}_free{fj[0]}{'e' if fj[1] else ''}{f's{fj[2]:g}' if fj[2] else ''}"
             rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE = n_px, m, c, r
             rex.SLIVER_MAX_SEE_THROUGH = float(v[4]) if len(v) > 4 else saved[4]
             spent[0] = 0.0
@@ -834,7 +835,7 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
     finally:
         (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex.SLIVER_MAX_SEE_THROUGH,
          rex._with_slivers) = saved
-        rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_EDGES = saved_free
+        rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_STEPS = saved_free
 
 
 def sliver_name(v: Sequence[float]) -> str:
@@ -872,12 +873,12 @@ def parse_slivers(text: str) -> list[tuple[float, ...]]:
     return out
 
 
-def parse_free(text: str) -> list[tuple[int, bool] | tuple[int, bool, bool]]:
-    """``--free-space``' readings: ``I:E[:S]``, comma-separated (I >= 0 rings, E and S 0 or 1)."""
+def parse_free(text: str) -> list[tuple[int, bool] | tuple[int, bool, float]]:
+    """``--free-space``' readings: ``I:E[:S]``, comma-separated (I >= 0 rings, E 0 or 1, S >= 0 footprints)."""
     return [_parse_free1(v, text) for v in text.split(",")]
 
 
-def _parse_free1(v: str, text: str) -> tuple[int, bool] | tuple[int, bool, bool]:
+def _parse_free1(v: str, text: str) -> tuple[int, bool] | tuple[int, bool, float]:
     """One ``--free-space`` reading (:func:`parse_free`).
 
     Raises
@@ -886,11 +887,12 @@ def _parse_free1(v: str, text: str) -> tuple[int, bool] | tuple[int, bool, bool]
         One line naming what it got.
     """
     f = v.split(":")
-    if len(f) not in (2, 3) or not all(x.isdigit() for x in f) or any(x not in ("0", "1") for x in f[1:]):
-        raise ValueError(f"--free-space takes I:E[:S] (I >= 0, E and S 0 or 1), comma-separated, got {text!r}")
+    if len(f) not in (2, 3) or not all(x.isdigit() for x in f[:2]) or f[1] not in ("0", "1") or (
+            len(f) == 3 and not f[2].replace(".", "", 1).isdigit()):
+        raise ValueError(f"--free-space takes I:E[:S] (I >= 0, E 0 or 1, S >= 0), comma-separated, got {text!r}")
     if len(f) == 2:
         return int(f[0]), f[1] == "1"
-    return int(f[0]), f[1] == "1", f[2] == "1"
+    return int(f[0]), f[1] == "1", float(f[2])
 
 
 def pipeline_options() -> Any:
@@ -1329,9 +1331,9 @@ def main() -> int:
                     "round')")
     ap.add_argument("--free-space", default="", metavar="I:E[:S],…",
                     help="with --slivers, one a variant in order: the pass's free-space share read without the "
-                    "silhouette's outer I rings and (E = 1) the scan's depth edges, and (S = 1) the regions cut at "
-                    "the depth edges (default: the tree's; docs/labelling.md, 'Twenty-first round', 'Twenty-second "
-                    "round')")
+                    "silhouette's outer I rings and (E = 1) the scan's depth edges, and (S > 0) the regions cut at "
+                    "the depth steps of more than S footprints (default: the tree's; docs/labelling.md, 'Twenty-first "
+                    "round', 'Twenty-third round')")
     ap.add_argument("--no-causes", action="store_true",
                     help="with --diagnose: score without the scene's true surfaces (no cause split; a held-out set)")
     ap.add_argument("--kinds", default="", metavar="F1,F2,…",

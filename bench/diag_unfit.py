@@ -21,16 +21,16 @@ surface it is, within :data:`VISIBLE_MM`):
   else refused by what: the residual or the share explained, the overlap with a fit, the free space (each bound
   relaxed in turn to name the one that refuses).
 
-With ``--split`` (docs/labelling.md, "Twenty-second round") the unexplained regions are those the pass labels with its
-regions cut at the scan's depth edges (:func:`zcut.sliver_fits.depth_edges`; ``SliverParams.split_edges``), the
-excess at those edges in no region, and the oracle runs with the cut and the free space read off the rim and edges
+With ``--split N`` (docs/labelling.md, "Twenty-third round") the unexplained regions are those the pass labels with its
+regions cut at the scan's depth steps of more than N footprints (:func:`zcut.sliver_fits.depth_steps`;
+``SliverParams.split_steps``), the excess at those steps in no region, and the oracle runs with the cut and the free space read off the rim and edges
 (``free_inset_px`` 2, ``free_skip_edges``): what the lever leaves of each instance's region.
 
 The causes' shares of the excess on unfitted instances are summed in pixels. Per frame also the instances found (those
 of >= 40 visible px matched) and the fully visible ones matched (bench/bench_fits.py's rule: >= 95 % of the pixels
 the instance covers alone are its own first hits, >= 100 of them valid and at least half of them).
 
-    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/diag_unfit.py LOG [--fits-cache DIR] [--frames 0,1] [--split] [--json F]
+    cd WORKTREE && PYTHONPATH=. .venv/bin/python bench/diag_unfit.py LOG [--fits-cache DIR] [--frames 0,1] [--split N] [--json F]
 """
 
 from __future__ import annotations
@@ -110,16 +110,16 @@ def _first_hits(parts: list[tuple[np.ndarray, np.ndarray]], K: tuple[float, floa
 
 def _oracle(xyz: np.ndarray, valid: np.ndarray, mask: np.ndarray, model: Any, poses: np.ndarray, sigma: float,
             K: tuple[float, float, float, float], true_pose_centre: np.ndarray, size: float, *,
-            split: bool = False) -> dict[str, Any]:
-    """The sliver pass (the method's parameters; ``split``: the regions cut at depth edges, the free space read off
-    the rim and edges) on ``mask`` alone; when it refuses, the bound that does."""
+            split: float = 0.0) -> dict[str, Any]:
+    """The sliver pass (the method's parameters; ``split`` > 0: the regions cut at depth steps of more than ``split``
+    footprints, the free space read off the rim and edges) on ``mask`` alone; when it refuses, the bound that does."""
     from replay.pipeline import explained as pe
     from zcut.sliver_fits import SliverParams, fit_slivers
 
     base = SliverParams(min_px=1, max_px=10 ** 9, max_regions=1, coarse=pe.SLIVER_COARSE, refine=pe.SLIVER_REFINE,
                         max_see_through=pe.SLIVER_MAX_SEE_THROUGH)
     if split:
-        base = dataclasses.replace(base, split_edges=True, free_inset_px=2, free_skip_edges=True)
+        base = dataclasses.replace(base, split_steps=float(split), free_inset_px=2, free_skip_edges=True)
 
     def run(p: SliverParams) -> list[Any]:
         return fit_slivers(xyz, valid, mask, model, poses, sigma_mm=sigma, params=p, intrinsics=K)
@@ -139,7 +139,7 @@ def _oracle(xyz: np.ndarray, valid: np.ndarray, mask: np.ndarray, model: Any, po
     return {"oracle": "refused: no guess converged"}
 
 
-def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True, split: bool = False
+def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True, split: float = 0.0
                 ) -> dict[str, Any]:
     from replay.logs import layout
     from replay.pipeline import explained as pe
@@ -173,10 +173,10 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True
     un, sliver_ids = B.sliver_input(ff, zone)
     K = frame.intrinsics
     Kt = (float(K.fx), float(K.fy), float(K.cx), float(K.cy))
-    if split:  # the pass's regions cut at the scan's depth edges: the edge pixels in none
-        from zcut.sliver_fits import depth_edges
+    if split:  # the pass's regions cut at the scan's depth steps: the step pixels in none
+        from zcut.sliver_fits import depth_steps
 
-        un = un & ~depth_edges(xyz, valid & np.isfinite(xyz).all(axis=2), Kt[0])
+        un = un & ~depth_steps(xyz, valid & np.isfinite(xyz).all(axis=2), Kt[0], split)
     lab, nreg = ndimage.label(un, structure=np.ones((3, 3), bool))
     sizes = np.bincount(lab.ravel(), minlength=nreg + 1)
     elig = np.flatnonzero((sizes >= pe.SLIVER_MIN_PX) & (sizes <= 2000))
@@ -295,9 +295,9 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True
 def main() -> int:
     ap = B.diag_arguments(__doc__.splitlines()[0])
     ap.add_argument("--no-oracle", action="store_true", help="skip the oracle sliver fits")
-    ap.add_argument("--split", action="store_true", help="the pass's regions cut at the scan's depth edges, the oracle "
-                    "with the cut and the free space read off the rim and edges (docs/labelling.md, 'Twenty-second "
-                    "round')")
+    ap.add_argument("--split", type=float, default=0.0, metavar="N", help="the pass's regions cut at the scan's depth "
+                    "steps of more than N footprints, the oracle with the cut and the free space read off the rim and "
+                    "edges (docs/labelling.md, 'Twenty-third round')")
     args = ap.parse_args()
     out = []
     for frame, job, ff in B.diag_frames(args):

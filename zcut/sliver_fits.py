@@ -25,11 +25,12 @@ makes likely and a constraint the scan gives for free:
    footprint) and without the pixels at a depth edge of the scan (:attr:`SliverParams.free_skip_edges`: a 4-neighbour
    invalid or more than :data:`EDGE_FOOTPRINTS` footprints off in depth, where a sensor's mixed pixels and
    interreflection ghosts lie; docs/labelling.md, "Twenty-first round").
-   With :attr:`SliverParams.split_edges` the regions are cut at the scan's depth edges before anything else: the
-   unexplained pixels at a depth edge (the same definition) take part in no region, so a region no longer joins a
-   part to the interreflection ghosts and mixed pixels attached to its silhouette, nor two things at different depths
-   (docs/labelling.md, "Twenty-second round"); the pixels left out are judged against the poses found as every pixel
-   is (the method's join).
+   With :attr:`SliverParams.split_steps` N > 0 the regions are cut at the scan's depth steps before anything else:
+   the unexplained pixels with a valid 4-neighbour more than N footprints off in depth (:func:`depth_steps`; an
+   invalid neighbour does not cut) take part in no region, so a region no longer joins two things at different depths
+   (docs/labelling.md, "Twenty-second round": cut at every depth edge, invalid neighbours too, the regions were
+   shredded by the ray-traced scan's dropouts; "Twenty-third round"); the pixels left out are judged against the
+   poses found as every pixel is (the method's join).
 4. *Acceptance.* The pose of lowest residual among those with residual ≤ :attr:`SliverParams.max_residual`
    × the frame's median Err, a share of the region explained ≥ :attr:`SliverParams.min_share` and free
    space kept. Its explained pixels become explained.
@@ -53,7 +54,7 @@ from zcut.errors import InputShapeError
 from zcut.fits import PartModel
 from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
 
-__all__ = ["SliverFit", "SliverParams", "depth_edges", "fit_slivers", "see_through_share"]
+__all__ = ["SliverFit", "SliverParams", "depth_edges", "depth_steps", "fit_slivers", "see_through_share"]
 
 EIGHT = np.ones((3, 3), bool)
 EIGHT.setflags(write=False)
@@ -98,9 +99,9 @@ class SliverParams:
         to the pixels whose centre's ray misses the posed model; 0: the whole silhouette).
     free_skip_edges : bool
         ... and without the pixels at a depth edge of the scan (:data:`EDGE_FOOTPRINTS`).
-    split_edges : bool
-        The unexplained pixels at a depth edge of the scan (:func:`depth_edges`) take part in no region: the regions
-        are cut there before they are counted, sized and posed.
+    split_steps : float
+        When > 0, the unexplained pixels at a depth step of more than this many footprints (:func:`depth_steps`) take
+        part in no region: the regions are cut there before they are counted, sized and posed (0: no cut).
     max_points : int
         At most this many of a region's points (an even subsample) take part in the ICP.
     free_checks : int
@@ -134,7 +135,7 @@ class SliverParams:
     max_see_through: float = 0.05
     free_inset_px: int = 0
     free_skip_edges: bool = False
-    split_edges: bool = False
+    split_steps: float = 0.0
     max_points: int = 400
     free_checks: int = 8
     max_overlap: float = 0.05
@@ -147,6 +148,8 @@ class SliverParams:
                      "refine"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"SliverParams.{name} must be at least 1, got {getattr(self, name)!r}")
+        if not float(self.split_steps) >= 0:
+            raise ValueError(f"SliverParams.split_steps must be at least 0, got {self.split_steps!r}")
         if int(self.free_inset_px) < 0:
             raise ValueError(f"SliverParams.free_inset_px must be at least 0, got {self.free_inset_px!r}")
         if not 0 <= int(self.coarse) <= int(self.iterations):
@@ -290,6 +293,21 @@ def depth_edges(xyz_mm: np.ndarray, valid: np.ndarray, fx: float) -> np.ndarray:
     return _edges_padded(z, float(fx))
 
 
+def depth_steps(xyz_mm: np.ndarray, valid: np.ndarray, fx: float, n: float) -> np.ndarray:
+    """(H, W) bool: the valid pixels at a depth step of the scan — a 4-neighbour in ``valid`` more than ``n``
+    footprints (the pixel's depth / ``fx``) off in depth. An invalid neighbour (or the image's border) is no step."""
+    H, W = valid.shape
+    z = np.full((H + 2, W + 2), np.nan)
+    z[1:-1, 1:-1] = np.where(valid, np.asarray(xyz_mm[..., 2], np.float64), np.nan)
+    mid = z[1:-1, 1:-1]
+    tol = float(n) * np.abs(mid) / float(fx)
+    step = np.zeros(mid.shape, bool)
+    with np.errstate(invalid="ignore"):
+        for nb in (z[1:-1, 2:], z[1:-1, :-2], z[2:, 1:-1], z[:-2, 1:-1]):
+            step |= np.abs(nb - mid) > tol  # NaN (an invalid pixel or neighbour) compares False
+    return step
+
+
 def _distinct(rotations: list[np.ndarray], model: PartModel, tol: float = 0.05) -> list[np.ndarray]:
     """The rotations, one of each class equal up to the model's symmetries (Frobenius distance below ``tol``)."""
     out: list[np.ndarray] = []
@@ -386,12 +404,12 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     if not mask.any() or not len(poses) or not np.isfinite(sigma_mm):
         return []
     intr: tuple[float, float, float, float] | None = None
-    if p.split_edges:  # the regions cut at the scan's depth edges: the edge pixels take part in none
+    if p.split_steps > 0:  # the regions cut at the scan's depth steps: the step pixels take part in none
         intr = _intrinsics(xyz_mm, valid) if intrinsics is None else (
             float(intrinsics[0]), float(intrinsics[1]), float(intrinsics[2]), float(intrinsics[3]))
         if intr is None:
             return []
-        mask &= ~depth_edges(xyz_mm, valid, intr[0])
+        mask &= ~depth_steps(xyz_mm, valid, intr[0], p.split_steps)
     labels, n = ndimage.label(mask, structure=EIGHT)
     sizes = np.bincount(labels.ravel(), minlength=n + 1)
     keep = np.flatnonzero((sizes >= p.min_px) & (sizes <= p.max_px))

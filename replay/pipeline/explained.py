@@ -113,9 +113,9 @@ SLIVER_MAX_SEE_THROUGH = 0.05
 #: (:attr:`zcut.sliver_fits.SliverParams.free_skip_edges`; docs/labelling.md, "Twenty-first round")
 SLIVER_FREE_INSET_PX = 0
 SLIVER_FREE_SKIP_EDGES = False
-#: ... and, when True, the regions cut at the scan's depth edges before they are sized and posed
-#: (:attr:`zcut.sliver_fits.SliverParams.split_edges`; docs/labelling.md, "Twenty-second round")
-SLIVER_SPLIT_EDGES = False
+#: ... and, when > 0, the regions cut at the scan's depth steps of more than this many footprints before they are sized
+#: and posed (:attr:`zcut.sliver_fits.SliverParams.split_steps`; docs/labelling.md, "Twenty-third round"; 0: no cut)
+SLIVER_SPLIT_STEPS = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -423,7 +423,7 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
                                             refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH,
                                             free_inset_px=SLIVER_FREE_INSET_PX, free_skip_edges=SLIVER_FREE_SKIP_EDGES,
-                                            split_edges=SLIVER_SPLIT_EDGES,
+                                            split_steps=SLIVER_SPLIT_STEPS,
                                             k=float(p.k),
                                             floor_mm=float(p.err_floor_mm)))
     if not found:
