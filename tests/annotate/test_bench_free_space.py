@@ -18,9 +18,10 @@ def bench() -> Iterator[ModuleType]:
 
 def test_fields(bench) -> None:  # type: ignore[no-untyped-def]
     assert bench.parse_free("0:0,2:1,1:1,10:0") == [(0, False), (2, True), (1, True), (10, False)]
+    assert bench.parse_free("2:1:10,0:0:3,0:0:0") == [(2, True, 10.0), (0, False, 3.0), (0, False, 0.0)]
 
 
-@pytest.mark.parametrize("text", ["", "2", "2:1:2", "2:1:0:1", "-1:1", "2:2", "a:1", "2:1,", "1.5:0"])
+@pytest.mark.parametrize("text", ["", "2", "2:1:-1", "2:1:x", "2:1:0:1", "-1:1", "2:2", "a:1", "2:1,", "1.5:0"])
 def test_bad_fields_refused(bench, text: str) -> None:  # type: ignore[no-untyped-def]
     with pytest.raises(ValueError, match=r"^--free-space takes I:E\[:S\]"):
         bench.parse_free(text)
@@ -52,6 +53,21 @@ def test_variants_set_the_reading_and_put_it_back(bench, monkeypatch) -> None:  
     seen.clear()
     names = [name for name, *_ in bench.sliver_variants(None, None, None, bench.parse_slivers("150:12:2:8"))]
     assert names == ["slivers150x12x2x8"] and seen == [(tree[0], tree[1], tree[2])]
+
+
+def test_a_cut_names_its_footprints_and_is_put_back(bench, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    import annotate.fits
+    import replay.pipeline.explained as rex
+
+    tree = rex.SLIVER_SPLIT_STEPS
+    seen: list = []
+    monkeypatch.setattr(annotate.fits, "fit_frame", lambda *a: seen.append(rex.SLIVER_SPLIT_STEPS))
+    session = SimpleNamespace(prepared=None, config=None)
+    monkeypatch.setattr(bench, "pipeline_options", lambda: SimpleNamespace(open_session=lambda log: session))
+    names = [name for name, *_ in bench.sliver_variants(None, None, None, bench.parse_slivers(
+        "150:12:2:8,150:12:2:8,150:24:2:8"), free=bench.parse_free("0:0:0,0:0:10,2:1:3"))]
+    assert names == ["slivers150x12x2x8_free0", "slivers150x12x2x8_free0s10", "slivers150x24x2x8_free2es3"]
+    assert seen == [0.0, 10.0, 3.0] and rex.SLIVER_SPLIT_STEPS == tree == 0.0
 
 
 def test_one_reading_a_variant(bench, monkeypatch) -> None:  # type: ignore[no-untyped-def]
