@@ -54,7 +54,8 @@ from zcut.errors import InputShapeError
 from zcut.fits import PartModel
 from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
 
-__all__ = ["SliverFit", "SliverParams", "depth_edges", "depth_steps", "fit_slivers", "see_through_share"]
+__all__ = ["SliverFit", "SliverParams", "depth_edges", "depth_steps", "fit_slivers", "projected_area_px",
+           "see_through_share"]
 
 EIGHT = np.ones((3, 3), bool)
 EIGHT.setflags(write=False)
@@ -102,6 +103,12 @@ class SliverParams:
     split_steps : float
         When > 0, the unexplained pixels at a depth step of more than this many footprints (:func:`depth_steps`) take
         part in no region: the regions are cut there before they are counted, sized and posed (0: no cut).
+    min_area_share : float
+        When > 0, a region is tried only when it also holds at least this share of a whole part's projected area at
+        its depth, π (extent · f / z)² pixels (:func:`projected_area_px`; extent the model's largest distance of a
+        vertex from its centroid, f the mean of fx and fy, z the region's median depth): the floor means the same at
+        every resolution and depth (the fits' second pass's ``seed_min_share`` rule, :mod:`zcut.fits.params`); 0:
+        :attr:`min_px` alone.
     max_points : int
         At most this many of a region's points (an even subsample) take part in the ICP.
     free_checks : int
@@ -136,6 +143,7 @@ class SliverParams:
     free_inset_px: int = 0
     free_skip_edges: bool = False
     split_steps: float = 0.0
+    min_area_share: float = 0.0
     max_points: int = 400
     free_checks: int = 8
     max_overlap: float = 0.05
@@ -157,7 +165,7 @@ class SliverParams:
         for name in ("gate_mm", "k", "max_residual"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"SliverParams.{name} must be positive, got {getattr(self, name)!r}")
-        for name in ("min_share", "max_see_through", "max_overlap"):
+        for name in ("min_share", "max_see_through", "max_overlap", "min_area_share"):
             v = float(getattr(self, name))
             if not 0.0 <= v <= 1.0:
                 raise ValueError(f"SliverParams.{name} must lie in [0, 1], got {v!r}")
@@ -308,6 +316,14 @@ def depth_steps(xyz_mm: np.ndarray, valid: np.ndarray, fx: float, n: float) -> n
     return step
 
 
+def projected_area_px(model: PartModel, z_mm: np.ndarray | float, f_px: float) -> np.ndarray:
+    """π (extent · f / z)²: the pixels a whole part at depth ``z_mm`` covers at most (``extent`` the model's largest
+    distance of a vertex from its centroid, ``f_px`` the focal length in pixels; the fits' second pass's area,
+    :mod:`zcut.fits.params` ``seed_min_share``)."""
+    r = float(model.extent_mm) * float(f_px) / np.maximum(np.asarray(z_mm, np.float64), 1e-6)
+    return np.asarray(np.pi * r * r)
+
+
 def _distinct(rotations: list[np.ndarray], model: PartModel, tol: float = 0.05) -> list[np.ndarray]:
     """The rotations, one of each class equal up to the model's symmetries (Frobenius distance below ``tol``)."""
     out: list[np.ndarray] = []
@@ -414,6 +430,15 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     sizes = np.bincount(labels.ravel(), minlength=n + 1)
     keep = np.flatnonzero((sizes >= p.min_px) & (sizes <= p.max_px))
     keep = keep[keep > 0]
+    if p.min_area_share > 0 and keep.size:  # the floor as a share of a whole part's projected area at its depth
+        if intr is None:
+            intr = _intrinsics(xyz_mm, valid) if intrinsics is None else (
+                float(intrinsics[0]), float(intrinsics[1]), float(intrinsics[2]), float(intrinsics[3]))
+            if intr is None:
+                return []
+        z_med = np.asarray(ndimage.median(np.asarray(xyz_mm[..., 2], np.float64), labels, keep), np.float64)
+        floor = np.ceil(p.min_area_share * projected_area_px(model, z_med, 0.5 * (intr[0] + intr[1])))
+        keep = keep[sizes[keep] >= floor]
     keep = keep[np.argsort(-sizes[keep], kind="stable")][:p.max_regions]  # the largest first, at most max_regions
     if not keep.size:
         return []

@@ -116,6 +116,10 @@ SLIVER_FREE_SKIP_EDGES = False
 #: ... and, when > 0, the regions cut at the scan's depth steps of more than this many footprints before they are sized
 #: and posed (:attr:`zcut.sliver_fits.SliverParams.split_steps`; docs/labelling.md, "Twenty-third round"; 0: no cut)
 SLIVER_SPLIT_STEPS = 0.0
+#: ... and, when > 0, a region is tried only when it also holds this share of a whole part's projected area at its
+#: depth (:attr:`zcut.sliver_fits.SliverParams.min_area_share`; docs/labelling.md, "Twenty-fourth round"; 0:
+#: :data:`SLIVER_MIN_PX` alone)
+SLIVER_MIN_AREA_SHARE = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -423,7 +427,7 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
                                             refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH,
                                             free_inset_px=SLIVER_FREE_INSET_PX, free_skip_edges=SLIVER_FREE_SKIP_EDGES,
-                                            split_steps=SLIVER_SPLIT_STEPS,
+                                            split_steps=SLIVER_SPLIT_STEPS, min_area_share=SLIVER_MIN_AREA_SHARE,
                                             k=float(p.k),
                                             floor_mm=float(p.err_floor_mm)))
     if not found:
