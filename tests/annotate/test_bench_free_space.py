@@ -69,7 +69,7 @@ def test_a_cut_names_its_footprints_and_is_put_back(bench, monkeypatch) -> None:
     names = [name for name, *_ in bench.sliver_variants(None, None, None, bench.parse_slivers(
         "150:12:2:8,150:12:2:8,150:24:2:8"), free=bench.parse_free("0:0:0,0:0:10,2:1:3"))]
     assert names == ["slivers150x12x2x8_free0", "slivers150x12x2x8_free0s10", "slivers150x24x2x8_free2es3"]
-    assert seen == [0.0, 10.0, 3.0] and rex.SLIVER_SPLIT_STEPS == tree == 0.0
+    assert seen == [0.0, 10.0, 3.0] and rex.SLIVER_SPLIT_STEPS == tree
 
 
 def test_an_area_floor_names_its_share_and_is_put_back(bench, monkeypatch) -> None:  # type: ignore[no-untyped-def]
@@ -87,7 +87,7 @@ def test_an_area_floor_names_its_share_and_is_put_back(bench, monkeypatch) -> No
     assert names == ["slivers150x12x2x8_free0s3", "slivers10x12x2x8_free0s3a0.025",
                      "slivers10x24x2x8_free2es3a0.025"]
     assert seen == [(150, 3.0, 0.0), (10, 3.0, 0.025), (10, 3.0, 0.025)]
-    assert (rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE) == tree == (0.0, 0.0)
+    assert (rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE) == tree
 
 
 def test_one_reading_a_variant(bench, monkeypatch) -> None:  # type: ignore[no-untyped-def]
