@@ -23,8 +23,9 @@ than ``k`` × Err (``[explained]`` section, :class:`zcut.params.ExplainedParams`
   the bin nor the table; the pixels it is
   nearer to take it and the residuals are measured again (:attr:`ExplainedDetail.top_pieces`).
 - **Slivers no fit took** (:mod:`zcut.sliver_fits`, :data:`SLIVER_MIN_PX`): last, the part is posed on the zone's
-  unexplained regions of :data:`SLIVER_MIN_PX` pixels or more (at most :data:`SLIVER_MAX_REGIONS` of them, the
-  largest first), guessed from the fitted neighbours' orientations; a pose that enters a fit's solid or lies in
+  unexplained regions, cut at the scan's depth steps of more than :data:`SLIVER_SPLIT_STEPS` footprints, of
+  :data:`SLIVER_MIN_PX` pixels and :data:`SLIVER_MIN_AREA_SHARE` of a whole part's projected area at their depth or
+  more (at most :data:`SLIVER_MAX_REGIONS` of them, the largest first), guessed from the fitted neighbours' orientations; a pose that enters a fit's solid or lies in
   front of what the camera saw is refused. A sliver fit joins the fits as the pieces on top do
   (:attr:`ExplainedDetail.slivers`); the labelling page's fits are these (annotate/fits.py), so its proposals stay
   the method's outliers.
@@ -95,8 +96,9 @@ SAMPLE_PX = 20_000
 #: docs/labelling.md, "Third round: what the label holds beside the truth"); False: the fits as found
 TOP_PIECES = True
 #: the sliver pass (:mod:`zcut.sliver_fits`, :func:`_with_slivers`): the part posed on the zone's unexplained regions
-#: of this many pixels or more after the fits and the pieces on top (docs/labelling.md, "Fourteenth round"); 0: off
-SLIVER_MIN_PX = 150
+#: of this many pixels or more after the fits and the pieces on top (docs/labelling.md, "Fourteenth round"; 10, the fits'
+#: second pass's ``SEED_MIN_PX``, with :data:`SLIVER_MIN_AREA_SHARE` since the "Twenty-fourth round"); 0: off
+SLIVER_MIN_PX = 10
 #: (mm) :func:`_join` tests the pixels whose nearest surface lies within this only near a new instance's box
 JOIN_SLAB_MM = 5.0
 #: ... at most this many of those regions tried, the largest first, and per region every guess a few wide ICP
@@ -108,6 +110,19 @@ SLIVER_REFINE = 8
 #: ... and a pose whose silhouette the camera saw through on more than this share of its pixels is refused (free
 #: space: :attr:`zcut.sliver_fits.SliverParams.max_see_through`; docs/labelling.md, "Eighteenth round")
 SLIVER_MAX_SEE_THROUGH = 0.05
+#: ... that share read without the silhouette's outer this many rings of pixels
+#: (:attr:`zcut.sliver_fits.SliverParams.free_inset_px`) and, when True, without the scan's depth-edge pixels
+#: (:attr:`zcut.sliver_fits.SliverParams.free_skip_edges`; docs/labelling.md, "Twenty-first round")
+SLIVER_FREE_INSET_PX = 0
+SLIVER_FREE_SKIP_EDGES = False
+#: ... and, when > 0, the regions cut at the scan's depth steps of more than this many footprints before they are sized
+#: and posed (:attr:`zcut.sliver_fits.SliverParams.split_steps`; docs/labelling.md, "Twenty-third round", 3 since the
+#: "Twenty-fourth round": the fits' own segmentation's ``jump_px``; 0: no cut)
+SLIVER_SPLIT_STEPS = 3.0
+#: ... and, when > 0, a region is tried only when it also holds this share of a whole part's projected area at its
+#: depth (:attr:`zcut.sliver_fits.SliverParams.min_area_share`; docs/labelling.md, "Twenty-fourth round": the fits'
+#: second pass's ``seed_min_share``, about 86-100 px for the zinc nuts at 1920 x 1200; 0: :data:`SLIVER_MIN_PX` alone)
+SLIVER_MIN_AREA_SHARE = 0.025
 
 
 @dataclass(frozen=True, slots=True)
@@ -395,7 +410,8 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
                   t: np.ndarray, prepared: Any, intr: Any, footprint: np.ndarray, judged: np.ndarray,
                   p: Any) -> tuple[tuple[PartFit, ...], Any, Any, int]:
     """(fits, surfaces, nearest, how many were added) with the slivers :func:`zcut.sliver_fits.fit_slivers` poses on
-    the zone's unexplained regions of :data:`SLIVER_MIN_PX` to its ``max_px`` pixels (at most
+    the zone's unexplained regions, cut at the depth steps of :data:`SLIVER_SPLIT_STEPS`, of :data:`SLIVER_MIN_PX` (and
+    :data:`SLIVER_MIN_AREA_SHARE` of a whole part's projected area at their depth) to its ``max_px`` pixels (at most
     :data:`SLIVER_MAX_REGIONS`, the largest first), guessed from the fits' orientations, kept out of their solids and
     of the free space the camera saw. A sliver fit states the frame's median fit residual σ (the one its acceptance
     used) and joins the fits as the pieces on top do (:func:`_join`): the judged pixels nearer to it take it."""
@@ -413,7 +429,10 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
     found = fit_slivers(xyz, np.isfinite(xyz).all(axis=2), un, prepared, np.stack([f.pose for f in fits]),
                         sigma_mm=sigma, intrinsics=intr,
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
-                                            refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH, k=float(p.k),
+                                            refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH,
+                                            free_inset_px=SLIVER_FREE_INSET_PX, free_skip_edges=SLIVER_FREE_SKIP_EDGES,
+                                            split_steps=SLIVER_SPLIT_STEPS, min_area_share=SLIVER_MIN_AREA_SHARE,
+                                            k=float(p.k),
                                             floor_mm=float(p.err_floor_mm)))
     if not found:
         return fits, surfaces, near, 0

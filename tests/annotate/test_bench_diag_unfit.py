@@ -48,3 +48,15 @@ def test_an_occluder_takes_the_first_hits_and_not_the_silhouette(bench) -> None:
 def test_a_part_behind_the_camera_or_off_the_image_has_no_silhouette(bench) -> None:  # type: ignore[no-untyped-def]
     assert bench._silhouette_px(*_square(0.0, 0.0, -100.0, 5.0), K, H, W) == 0
     assert bench._silhouette_px(*_square(500.0, 0.0, 100.0, 5.0), K, H, W) == 0
+
+
+@pytest.mark.parametrize("extra, what", [(["--area-share", "1.5"], "--area-share A in [0, 1], got None and 1.5"),
+                                         (["--min-px", "0"], "--min-px takes N >= 1"),
+                                         (["--oracle-free", "2:3"], "--oracle-free takes I:E (I >= 0, E 0 or 1), "
+                                                                    "got '2:3'")])
+def test_bad_floor_or_reading_refused_in_one_line(bench, monkeypatch, extra: list[str], what: str
+                                                  ) -> None:  # type: ignore[no-untyped-def]
+    monkeypatch.setattr("sys.argv", ["diag_unfit.py", "/nonexistent.mcap", *extra])
+    with pytest.raises(SystemExit) as e:
+        bench.main()
+    assert what in str(e.value) and "\n" not in str(e.value)

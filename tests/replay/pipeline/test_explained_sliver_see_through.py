@@ -43,6 +43,9 @@ def floating():  # type: ignore[no-untyped-def]
     return nut, xyz, patch, pose(T[:3, :3], (-40.0, -20.0, 380.0))
 
 
+handed: list[tuple[int, float, float]] = []
+
+
 def _pass(floating, monkeypatch, bound: float | None):  # type: ignore[no-untyped-def]
     """(sliver fits added, the bound SliverParams got) of the method's pass on the scene, with the constant set to
     ``bound`` (None: the tree's)."""
@@ -55,6 +58,7 @@ def _pass(floating, monkeypatch, bound: float | None):  # type: ignore[no-untype
 
     def noted(*a, **k):  # type: ignore[no-untyped-def]
         got.append(k["params"].max_see_through)
+        handed.append((k["params"].min_px, k["params"].split_steps, k["params"].min_area_share))
         return inner(*a, **k)
 
     monkeypatch.setattr(zcut.sliver_fits, "fit_slivers", noted)
@@ -75,3 +79,14 @@ def test_the_method_hands_its_free_space_bound_to_the_pass(floating, monkeypatch
     # the same pass with the bound at 1 takes it: the constant is what refuses it
     n, got = _pass(floating, monkeypatch, 1.0)
     assert n == 1 and got == [1.0]
+
+
+def test_the_method_hands_its_cut_and_floor_to_the_pass(floating, monkeypatch) -> None:  # type: ignore[no-untyped-def]
+    # docs/labelling.md, "Twenty-fourth round": the regions cut at depth steps of 3 footprints, the floor 10 px and
+    # 0.025 of a whole part's projected area; the page's fits run the same pass (annotate/fits.py)
+    assert (rex.SLIVER_MIN_PX, rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE) == (10, 3.0, 0.025)
+    handed.clear()
+    monkeypatch.setattr(rex, "SLIVER_SPLIT_STEPS", 7.0)
+    monkeypatch.setattr(rex, "SLIVER_MIN_AREA_SHARE", 0.5)
+    _pass(floating, monkeypatch, None)
+    assert handed == [(20, 7.0, 0.5)]
