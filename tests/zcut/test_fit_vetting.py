@@ -242,5 +242,7 @@ def test_a_max_overlap_of_one_keeps_every_fit(overlapping, monkeypatch):
     config = dataclasses.replace(session.config, bank={**session.config.bank, "explained": p})
     off, d_off, _ = run_explained(frame, zone, config)
     assert d_off is not None and not d_off.vetted_out
-    assert len(d_off.fits) == len(d_on.fits) + len(d_on.vetted_out)
+    # the fits' own (the sliver pass's, appended after them, pose on what the fits leave unexplained: with the
+    # vetting off it sees other regions, and since the cut at depth steps it may pose another there)
+    assert len(d_off.fits) - d_off.slivers == len(d_on.fits) - d_on.slivers + len(d_on.vetted_out)
     assert off.sum() < on.sum()  # the duplicates' bands explain points the vetting proposes
