@@ -77,7 +77,6 @@ __all__ = [
     "pruned_outliers",
     "pruned_scratch",
     "squeezed_heights",
-    "squeezed_levels",
     "qlevel",
     "segments_in_cuts",
     "taggable_forest",
@@ -482,14 +481,6 @@ def _segment_levels(zf, st, row, base, c0, c1, z_min, z_max, step, inv_step, hi,
             st[base + c] = _qlevel_guess(zt, z_max, step, inv_step, hi) if zt >= thr else -1
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
-def _segment_table(lf, tab, st, row, base, c0, c1):  # type: ignore[no-untyped-def]  # numba kernel
-    """``st[base + c] = tab[lf[row + c]]`` for c in [c0, c1): :func:`_segment_levels` from levels known already
-    (:func:`squeezed_levels`)."""
-    for c in range(c0, c1):
-        st[np.uint64(base + c)] = tab[np.uint64(lf[np.uint64(row + c)])]
-
-
 #: The bits of :func:`_gentle_codes`: a gentle edge to W, NE, NW, N; the unions with NW, NE, W that the
 #: scan must make (when the labels differ); the pixel is in the cuts.
 _GW, _GNE, _GNW, _GN, _UNW, _UNE, _UW, _IN_CUTS = 1, 2, 4, 8, 16, 32, 64, 128
@@ -536,7 +527,7 @@ def _gentle_codes(st, b, c0, c1, Wp, codes):  # type: ignore[no-untyped-def]  # 
 
 @numba.njit(cache=True, nogil=True)
 def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, check, st, pix, gl, gpar, gcnt,  # type: ignore[no-untyped-def]  # numba kernel
-                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None, ltab=None):
+                  share=0.5, wr=0, wc=0, wh=-1, ww=-1, gls=None):
     """:func:`flood_levels` without ``own`` and ``pixel_level``, labelling on the way the *gentle
     components*: the components of the pixels in the cuts where two neighbours are joined when
     their levels differ by at most 1.
@@ -567,11 +558,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
     ``wr, wc, wh, ww``: the window of z worked on, rows ``wr .. wr + wh - 1`` and columns ``wc .. wc
     + ww - 1`` (``wc`` a multiple of SEGMENT; ``wh, ww`` = -1: the whole frame); ``st``, ``gl`` and
     the indices in ``pix`` are then the window's (padded: ``(wh + 2) * (ww + 2)``). No pixel in the
-    cuts may lie outside it.
-
-    ``ltab``: ``z`` holds levels already, not heights (:func:`squeezed_levels`' uint16 levels and table): a pixel's
-    level in the cuts, or -1, is ``ltab[z]`` (``z_min``, ``z_max``, ``step`` and ``seg_max`` those of the heights
-    they level, for the window and the segments skipped)."""
+    cuts may lie outside it."""
     ZW = z.shape[1]
     H = z.shape[0] if wh < 0 else wh
     W = ZW if ww < 0 else ww
@@ -609,7 +596,7 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                     _prefetch_w(st, np.uint64(nb + j))
                 if not skip or seg_max[wr + r + 1, (wc + c0) // SEGMENT] >= thr:
                     nxt = (wr + r + 1) * ZW + wc + c0
-                    for j in range(0, c1 - c0, 8 if ltab is None else 32):
+                    for j in range(0, c1 - c0, 8):
                         _prefetch(zf, np.uint64(nxt + j))
                     for j in range(0, c1 - c0, 16):
                         _prefetch_w(gl, np.uint64(nb + j))
@@ -617,11 +604,8 @@ def gentle_levels(z, seg_max, z_min, z_max, step, hi, top, conn8, max_area, chec
                 st[base + 1 + c0:base + 1 + c1] = -1
                 qw = -1  # type: ignore[assignment]  # numba kernel: an int64 local
                 continue
-            if ltab is None:
-                _segment_levels(zf, st, (wr + r) * ZW + wc, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr,
-                                top)
-            else:
-                _segment_table(zf, ltab, st, (wr + r) * ZW + wc, base + 1, c0, c1)
+            _segment_levels(zf, st, (wr + r) * ZW + wc, base + 1, c0, c1, z_min, z_max, step, inv_step, hi, thr,
+                            top)
             if labelling and conn8:
                 # the 8-connected labelling from the segment's gentle-edge codes (:func:`_gentle_codes`:
                 # the levels' tests, in vector lanes); the scan itself reads only the codes and labels
@@ -1670,20 +1654,20 @@ def cuts_window(seg_max, thr, W):  # type: ignore[no-untyped-def]  # numba kerne
 
 @numba.njit(cache=True, nogil=True)
 def gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, wr, wc, wh, ww, bound,  # type: ignore[no-untyped-def]  # numba kernel
-                listed, ltab=None):
+                listed):
     """The pixels of the small gentle components in the window (:func:`gentle_levels`, then :func:`gentle_prune`),
     for :func:`pruned_outliers` and :func:`pruned_clusters`: (the flood's scratch ``st``, the level starts, the kept
     pixels, their labels ``gl``). ``listed``: the labels kept in the order of the pixels (``gls``) — when at most half
-    the frame may be in the cuts (:func:`pruned_outliers` says why). ``ltab``: as :func:`gentle_levels`'."""
+    the frame may be in the cuts (:func:`pruned_outliers` says why)."""
     st, gl, pix, gpar, gcnt, gls = pruned_scratch((wh + 2) * (ww + 2), bound, bound if listed else 0)
     if listed:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls, ltab)
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, gls)
         start = np.zeros(top + 2, np.int64)
         keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top, gls)
     else:
         m, nl, labelled = gentle_levels(z, seg_max, z_min, z_max, step, k_eff + 2, top, gentle8, max_area, check,
-                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww, None, ltab)
+                                        st, pix, gl, gpar, gcnt, 0.5, wr, wc, wh, ww)
         start = np.zeros(top + 2, np.int64)
         keep = gentle_prune(st, pix, m, gl, gpar, gcnt, nl, max_area, start, labelled, ww, conn8, top)
     return st, start, pix[:keep], gl
@@ -1783,17 +1767,34 @@ def _squeeze_levels(zf, row, c0, c1, z_max, step, inv_step, q_min, buf):  # type
 
 
 @numba.njit(cache=True, nogil=True)
-def _squeeze_map(z, z_max, step, q_min):  # type: ignore[no-untyped-def]  # numba kernel
-    """The squeeze's pass over ``z`` (:func:`squeezed_heights`): each pixel's level ((H * W,) uint16, flat:
-    :func:`qlevel` ``(zt, z_max, step, q_min + 1)``, ``q_min + 1`` where not finite; ``q_min`` < 2**16 - 1, which
-    ``MAX_STAGE_LEVELS`` bounds), levelled a row segment of ``SEGMENT`` pixels at a time as vectors
-    (:func:`_squeeze_levels`), and from the levels occupied ``map`` and its inverse. Returns (levels, map,
-    inverse)."""
+def squeezed_heights(z, seg_max, z_max, step, q_min, out, seg_out):  # type: ignore[no-untyped-def]  # numba kernel
+    """The heights of a cut that holds every pixel with its bands of empty levels squeezed, for
+    :func:`zcut.cuts.cluster_labels_of`: each finite pixel's level ``q`` (:func:`qlevel` ``(zt, z_max, step, q_min
+    + 1)``, at most ``q_min``, the lowest height's) becomes ``map[q]``, where ``map`` keeps 0 and 1 and, between
+    consecutive levels of S = {0, 1} ∪ {the levels some pixel is at}, counts a gap of g levels as min(g, 2);
+    ``out`` = -map[q] (step 1.0 from a top of 0.0: :func:`qlevel` gives exactly ``map[q]`` there), NaN where ``z``
+    is not finite. ``seg_max`` is :func:`finite_range`'s of ``z``; ``seg_out`` (its shape) gets the same of
+    ``out`` (-inf: no finite height; else -map[the level of the segment's largest height], ``map`` and
+    :func:`qlevel` being monotone), so that ``out``'s range is known without a pass over it: max 0.0 (the top
+    pixel's level is 0), min -map[q_min]. Returns (``map`` ((q_min + 1,) int64, -1 off S), its inverse
+    ((map[q_min] + 1,) int64, -1 off map(S))).
+
+    One pass over ``z``, levelling a row segment of ``SEGMENT`` pixels at a time as vectors
+    (:func:`_squeeze_levels`), marks the occupied levels and keeps each pixel's level (uint16: ``q_min`` < 2**16 -
+    1, which ``MAX_STAGE_LEVELS`` bounds); a second over those writes ``out`` from a table of ``map``'s heights
+    (~1 ms a 1920 x 1200 frame less than levelling ``z`` again, docs/performance.md).
+
+    Why the clusters are the same: empty levels add no pixel, so the sequence of distinct cuts, the tree's
+    nodes as pixel sets and their order are the same, a node's birth b and end e (levels in S) becoming map[b],
+    map[e]; with every pixel in the cuts a node is tagged iff max(b, 1) <= e - 2 (and its size is below
+    max_area: the same sets), and e - max(b, 1), a sum of gaps each >= 1, is >= 2 iff the sum of their
+    min(g, 2) is (map keeps 1, so max(map[b], 1) = map[max(b, 1)])."""
     H, W = z.shape
     inv_step = 1.0 / step
     occ = np.zeros(q_min + 2, np.bool_)
     buf = np.empty(SEGMENT, np.int64)
     zf = z.reshape(-1)
+    of = out.reshape(-1)
     lv = np.empty(zf.size, np.uint16)
     for r in range(H):  # the levels and the occupied ones (q_min + 1: not finite)
         for c0 in range(0, W, SEGMENT):
@@ -1819,87 +1820,26 @@ def _squeeze_map(z, z_max, step, q_min):  # type: ignore[no-untyped-def]  # numb
     for q in range(q_min + 1):
         if fwd[q] >= 0:
             inv[fwd[q]] = q
-    return lv, fwd, inv
-
-
-@numba.njit(cache=True, nogil=True)
-def _squeezed_segments(seg_max, z_max, step, q_min, fwd, seg_out):  # type: ignore[no-untyped-def]  # numba kernel
-    """``seg_out`` of :func:`squeezed_heights`: -map[the level of each row segment's largest height], -inf where
-    the segment has no finite height."""
-    inv_step = 1.0 / step
-    for r in range(seg_max.shape[0]):
-        for s in range(seg_max.shape[1]):
-            v = seg_max[r, s]
-            seg_out[r, s] = 0.0 - float(fwd[_qlevel_guess(v, z_max, step, inv_step, q_min + 1)]) \
-                if np.isfinite(v) else -np.inf
-
-
-@numba.njit(cache=True, nogil=True)
-def squeezed_heights(z, seg_max, z_max, step, q_min, out, seg_out):  # type: ignore[no-untyped-def]  # numba kernel
-    """The heights of a cut that holds every pixel with its bands of empty levels squeezed, for
-    :func:`zcut.cuts.cluster_labels_of`: each finite pixel's level ``q`` (:func:`qlevel` ``(zt, z_max, step, q_min
-    + 1)``, at most ``q_min``, the lowest height's) becomes ``map[q]``, where ``map`` keeps 0 and 1 and, between
-    consecutive levels of S = {0, 1} ∪ {the levels some pixel is at}, counts a gap of g levels as min(g, 2);
-    ``out`` = -map[q] (step 1.0 from a top of 0.0: :func:`qlevel` gives exactly ``map[q]`` there), NaN where ``z``
-    is not finite. ``seg_max`` is :func:`finite_range`'s of ``z``; ``seg_out`` (its shape) gets the same of
-    ``out`` (-inf: no finite height; else -map[the level of the segment's largest height], ``map`` and
-    :func:`qlevel` being monotone), so that ``out``'s range is known without a pass over it: max 0.0 (the top
-    pixel's level is 0), min -map[q_min]. Returns (``map`` ((q_min + 1,) int64, -1 off S), its inverse
-    ((map[q_min] + 1,) int64, -1 off map(S))).
-
-    One pass over ``z`` (:func:`_squeeze_map`) keeps each pixel's level; a second over those writes ``out`` from a
-    table of ``map``'s heights (~1 ms a 1920 x 1200 frame less than levelling ``z`` again, docs/performance.md).
-    :func:`squeezed_levels` gives the pruned flood the levels of ``out`` without ``out``.
-
-    Why the clusters are the same: empty levels add no pixel, so the sequence of distinct cuts, the tree's
-    nodes as pixel sets and their order are the same, a node's birth b and end e (levels in S) becoming map[b],
-    map[e]; with every pixel in the cuts a node is tagged iff max(b, 1) <= e - 2 (and its size is below
-    max_area: the same sets), and e - max(b, 1), a sum of gaps each >= 1, is >= 2 iff the sum of their
-    min(g, 2) is (map keeps 1, so max(map[b], 1) = map[max(b, 1)])."""
-    lv, fwd, inv = _squeeze_map(z, z_max, step, q_min)
     tab = np.empty(q_min + 2)  # the squeezed height of each level, NaN for "not finite"
     for q in range(q_min + 1):
         tab[q] = 0.0 - float(fwd[q])
     tab[q_min + 1] = np.nan
-    of = out.reshape(-1)
-    for p in range(lv.size):
+    for p in range(zf.size):
         of[np.uint64(p)] = tab[lv[np.uint64(p)]]
-    _squeezed_segments(seg_max, z_max, step, q_min, fwd, seg_out)
+    for r in range(seg_max.shape[0]):
+        for s in range(seg_max.shape[1]):
+            v = seg_max[r, s]
+            seg_out[r, s] = tab[_qlevel_guess(v, z_max, step, inv_step, q_min + 1)] if np.isfinite(v) else -np.inf
     return fwd, inv
 
 
 @numba.njit(cache=True, nogil=True)
-def squeezed_levels(z, seg_max, z_max, step, q_min, seg_out):  # type: ignore[no-untyped-def]  # numba kernel
-    """:func:`squeezed_heights` for :func:`pruned_clusters` without the squeezed heights: the squeeze's levels
-    (:func:`_squeeze_map`, (H, W) uint16) and a table from them to the levels of the cuts the pruned flood takes on
-    the squeezed heights (``K' = map[q_min] - 2``, ``top = K' + 1``: :func:`zcut.cuts._squeezed_clusters`), int16:
-    ``map[q]`` for q < ``q_min``, -1 (outside the cuts) at ``q_min`` and where not finite (q_min + 1) — what
-    :func:`gentle_levels` computes from the squeezed heights, :func:`qlevel` being exact there (step 1.0 from a
-    top of 0.0). The table is empty when ``map[q_min] > SHALLOW_LEVELS`` (the pruned flood does not apply: its
-    levels need not fit). ``seg_out``: as :func:`squeezed_heights`'. Returns (levels, table, map, inverse)."""
-    lv, fwd, inv = _squeeze_map(z, z_max, step, q_min)
-    if fwd[q_min] > SHALLOW_LEVELS:
-        tab = np.empty(0, np.int16)
-    else:
-        tab = np.empty(q_min + 2, np.int16)
-        for q in range(q_min):
-            tab[q] = np.int16(fwd[q])
-        tab[q_min] = -1
-        tab[q_min + 1] = -1
-    _squeezed_segments(seg_max, z_max, step, q_min, fwd, seg_out)
-    return lv.reshape(z.shape), tab, fwd, inv
-
-
-@numba.njit(cache=True, nogil=True)
-def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, labels,  # type: ignore[no-untyped-def]  # numba kernel
-                    ltab=None):
+def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check, minimum, labels):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`pruned_outliers` with :func:`pruned_cluster_labels` as its read-out: the cluster labels of
     :func:`zcut.cuts.find_clusters` into ``labels`` ((H * W,) int32, zeroed), from the flood over the pixels of
     the small gentle components only (the tagged nodes, as pixel sets, are the whole tree's: :func:`gentle_prune`;
     so are the outermost ones, and their numbers, by their first valid pixel in raster order). Returns (applied,
-    the clusters' areas, their levels ``max(b, 1)``); not applied: nothing written (as :func:`pruned_outliers`).
-    ``ltab``: ``z`` holds the levels of :func:`squeezed_levels` (:func:`gentle_levels`); every pixel in the cuts is
-    then finite, which is all :func:`pruned_cluster_labels` reads of ``z`` (an integer is finite)."""
+    the clusters' areas, their levels ``max(b, 1)``); not applied: nothing written (as :func:`pruned_outliers`)."""
     H, W = z.shape
     empty = np.zeros(0, np.int64)
     thr = z_max - top * step
@@ -1914,7 +1854,7 @@ def pruned_clusters(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, 
         bound = min(bound, wh * ww)
     listed = some and 2 * bound <= H * W
     st, start, kept, gl = gentle_kept(z, seg_max, z_min, z_max, step, k_eff, top, conn8, gentle8, max_area, check,
-                                      wr, wc, wh, ww, bound, listed, ltab)
+                                      wr, wc, wh, ww, bound, listed)
     node_b, _, node_parent, tagged, fin = flood_core_left_out(st, start, kept, ww, k_eff, top, conn8, max_area, gl)
     tops, areas = pruned_cluster_labels(z, gl, kept, fin, node_parent, tagged, labels, wr, wc, ww)
     levels = np.empty(tops.size, np.int64)

@@ -115,7 +115,7 @@ from .cut_tree import (
     pruned_scratch,
     qlevel,
     retag,
-    squeezed_levels,
+    squeezed_heights,
     union_find_tree,
 )
 from .errors import InputShapeError, ParameterError, describe_array
@@ -646,12 +646,11 @@ def _squeezed_clusters(z: np.ndarray, seg_max: np.ndarray, z_max: float, step: f
     ray-traced frame's far points spread 1.95 M pixels over 25,990 levels, 3,267 of them occupied (3,826 once
     squeezed). ``seg_max`` is :func:`_finite_range`'s of ``z``; the squeezed heights' range and row segments' maxima
     come from the squeeze itself (:func:`_finite_range` of them equals them: tests/zcut/test_cuts_cluster_labels.py).
-    The squeezed heights themselves are not written: the pruned flood takes their levels from the squeeze's
-    (``zcut.cut_tree.squeezed_levels``, a table from each pixel's level to its level in the squeezed cuts).
     None when it does not apply (the whole tree's flood then)."""
     H, W = z.shape
+    zs = np.empty((H, W))
     seg2 = np.empty_like(seg_max)
-    lv, ltab, fwd, inv = squeezed_levels(z, seg_max, z_max, step, np.int64(q_min), seg2)
+    fwd, inv = squeezed_heights(z, seg_max, z_max, step, np.int64(q_min), zs, seg2)
     q2 = int(fwd[q_min])
     k2 = q2 - 2  # K' = q_min - 2 of the squeezed heights
     if k2 + 1 >= SHALLOW_LEVELS:
@@ -662,8 +661,8 @@ def _squeezed_clusters(z: np.ndarray, seg_max: np.ndarray, z_max: float, step: f
     conn8 = connectivity == 8
     if check is None:
         check = max(PRUNE_CHECK, PRUNE_CHECK_ROWS * W)
-    ok, areas, levels = pruned_clusters(lv, seg2, lo2, hi2, 1.0, np.int64(k_eff), np.int64(top), conn8, conn8,
-                                        float(max_area), np.int64(check), np.int64(minimum), clusters.reshape(-1), ltab)
+    ok, areas, levels = pruned_clusters(zs, seg2, lo2, hi2, 1.0, np.int64(k_eff), np.int64(top), conn8, conn8,
+                                        float(max_area), np.int64(check), np.int64(minimum), clusters.reshape(-1))
     if not ok:
         return None
     return clusters, areas, inv[levels].astype(np.int32)
