@@ -117,15 +117,13 @@ FITS_CACHE: Path | None = None
 #: fits from the same frame and job, the frame's fits and pieces on top computed once (:func:`sliver_variants`); the
 #: fits cache is then written with the pass off. None: the tree's defaults (docs/labelling.md, "Fourteenth round").
 SLIVERS: list[tuple[float, ...]] | None = None
-#: ``--free-space I:E,…`` (with ``--slivers``, one a variant, in order): the pass's free-space share read without the
-#: silhouette's outer I rings (``SLIVER_FREE_INSET_PX``) and, E = 1, without the scan's depth edges
-#: (``SLIVER_FREE_SKIP_EDGES``); a variant's name then ends in ``_freeI`` (E = 0) or ``_freeIe``. None: the tree's
-#: (docs/labelling.md, "Twenty-first round"). ``I:E:S`` with S > 0 also cuts the pass's regions at the scan's depth
-#: steps of more than S footprints (``SLIVER_SPLIT_STEPS``), the name then ending in ``sS`` (``_free2es10``;
-#: docs/labelling.md, "Twenty-third round"). ``I:E:S:A`` with A > 0 also tries a region only when it holds A of a whole
-#: part's projected area at its depth (``SLIVER_MIN_AREA_SHARE``), the name then ending in ``aA`` (``_free2es3a0.025``;
-#: docs/labelling.md, "Twenty-fourth round").
-FREE: list[tuple[int, bool] | tuple[int, bool, float] | tuple[int, bool, float, float]] | None = None
+#: ``--free-space S:A,…`` (with ``--slivers``, one a variant, in order): the pass's regions cut at the scan's depth
+#: steps of more than S footprints (``SLIVER_SPLIT_STEPS``; 0: no cut; docs/labelling.md, "Twenty-third round") and,
+#: A > 0, a region tried only when it holds A of a whole part's projected area at its depth (``SLIVER_MIN_AREA_SHARE``;
+#: "Twenty-fourth round"). A variant's name then ends in ``_free0``, ``sS`` where S > 0 and ``aA`` where A > 0
+#: (``_free0s3a0.025``: the names the removed ``I:E:S:A`` form gave at I = 0, E = 0, so earlier rounds' rows compare by
+#: name). None: the tree's.
+FREE: list[tuple[float, float]] | None = None
 #: ``--no-causes`` (``--diagnose`` only): each frame scored without the scene's true surfaces (no cause split)
 NO_CAUSES = False
 
@@ -792,14 +790,13 @@ class shared_fits:
 
 
 def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[float, ...]], *,
-                    free: Sequence[tuple[int, bool] | tuple[int, bool, float] | tuple[int, bool, float, float]] | None = None
-                    ) -> Iterator[tuple[str, Any, float, float]]:
+                    free: Sequence[tuple[float, float]] | None = None) -> Iterator[tuple[str, Any, float, float]]:
     """(name, the page's fits, their CPU-s, the sliver pass's CPU-s) of ``frame`` for each variant (:data:`SLIVERS`):
     :func:`annotate.fits.fit_frame` with the pass's constants set (N, M, C, R, S; S the tree's where a variant gives
     four fields), under :class:`shared_fits` (the caller's): the fits and the pieces on top computed once for all. A
     variant's name is ``slivers`` and its fields joined by ``x`` (``slivers150x12x2x8``, ``slivers150x12x2x8x0.2``).
-    With ``free`` (:data:`FREE`, one a variant) each variant's free-space reading and region cut, its name ending in
-    ``_freeI[e][sS][aA]``."""
+    With ``free`` (:data:`FREE`, one a variant) each variant's region cut and area floor, its name ending in
+    ``_free0[sS][aA]``."""
     import replay.pipeline.explained as rex
     from annotate.fits import fit_frame
 
@@ -807,10 +804,9 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
     bin_model = session.prepared.model if session.prepared is not None else None
     saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE,
              rex.SLIVER_MAX_SEE_THROUGH, rex._with_slivers)
-    saved_free = (rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_STEPS,
-                  rex.SLIVER_MIN_AREA_SHARE)
+    saved_free = (rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE)
     if free is not None and len(free) != len(variants):
-        raise ValueError(f"--free-space takes one I:E[:S[:A]] a --slivers variant ({len(variants)}), got {len(free)}")
+        raise ValueError(f"--free-space takes one S:A a --slivers variant ({len(variants)}), got {len(free)}")
     spent = [0.0]
     inner = rex._with_slivers
 
@@ -825,11 +821,10 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
     try:
         for j, v in enumerate(variants):
             n_px, m, c, r = (int(x) for x in (*v, 0, 1)[:4])
-            fj = saved_free if free is None else (*free[j], 0.0, 0.0)[:4]
-            rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE = fj
+            fj = saved_free if free is None else (float(free[j][0]), float(free[j][1]))
+            rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE = fj
             name = sliver_name(v) if free is None else \
-                (f"{sliver_name(v)}_free{fj[0]}{'e' if fj[1] else ''}{f's{fj[2]:g}' if fj[2] else ''}"
-                 f"{f'a{fj[3]:g}' if fj[3] else ''}")
+                f"{sliver_name(v)}_free0{f's{fj[0]:g}' if fj[0] else ''}{f'a{fj[1]:g}' if fj[1] else ''}"
             rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE = n_px, m, c, r
             rex.SLIVER_MAX_SEE_THROUGH = float(v[4]) if len(v) > 4 else saved[4]
             spent[0] = 0.0
@@ -839,8 +834,7 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
     finally:
         (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex.SLIVER_MAX_SEE_THROUGH,
          rex._with_slivers) = saved
-        (rex.SLIVER_FREE_INSET_PX, rex.SLIVER_FREE_SKIP_EDGES, rex.SLIVER_SPLIT_STEPS,
-         rex.SLIVER_MIN_AREA_SHARE) = saved_free
+        rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE = saved_free
 
 
 def sliver_name(v: Sequence[float]) -> str:
@@ -878,30 +872,25 @@ def parse_slivers(text: str) -> list[tuple[float, ...]]:
     return out
 
 
-def parse_free(text: str) -> list[tuple[int, bool] | tuple[int, bool, float] | tuple[int, bool, float, float]]:
-    """``--free-space``' readings: ``I:E[:S[:A]]``, comma-separated (I >= 0 rings, E 0 or 1, S >= 0 footprints, A a
-    share of a whole part's projected area in [0, 1])."""
-    return [_parse_free1(v, text) for v in text.split(",")]
-
-
-def _parse_free1(v: str, text: str) -> tuple[int, bool] | tuple[int, bool, float] | tuple[int, bool, float, float]:
-    """One ``--free-space`` reading (:func:`parse_free`).
+def parse_free(text: str) -> list[tuple[float, float]]:
+    """``--free-space``' variants: ``S:A``, comma-separated (S >= 0 footprints, the regions' cut; A a share of a whole
+    part's projected area in [0, 1], their floor).
 
     Raises
     ------
     ValueError
-        One line naming what it got.
+        One line naming what it got (the removed ``I:E:S:A`` form of the free-space reading too).
     """
-    f = v.split(":")
-    if len(f) not in (2, 3, 4) or not all(x.isdigit() for x in f[:2]) or f[1] not in ("0", "1") or not all(
-            x.replace(".", "", 1).isdigit() for x in f[2:]) or (len(f) == 4 and not float(f[3]) <= 1.0):
-        raise ValueError(f"--free-space takes I:E[:S[:A]] (I >= 0, E 0 or 1, S >= 0, 0 <= A <= 1), comma-separated, "
-                         f"got {text!r}")
-    if len(f) == 2:
-        return int(f[0]), f[1] == "1"
-    if len(f) == 3:
-        return int(f[0]), f[1] == "1", float(f[2])
-    return int(f[0]), f[1] == "1", float(f[2]), float(f[3])
+    out: list[tuple[float, float]] = []
+    for v in text.split(","):
+        f = v.split(":")
+        if len(f) == 4:
+            raise ValueError(f"--free-space takes S:A now: the I:E fields (the free-space reading off the rim and "
+                             f"edges) were removed, got {text!r}")
+        if len(f) != 2 or not all(x.replace(".", "", 1).isdigit() for x in f) or not float(f[1]) <= 1.0:
+            raise ValueError(f"--free-space takes S:A (S >= 0, 0 <= A <= 1), comma-separated, got {text!r}")
+        out.append((float(f[0]), float(f[1])))
+    return out
 
 
 def pipeline_options() -> Any:
@@ -1338,12 +1327,11 @@ def main() -> int:
                     "share of a pose's silhouette seen through, default the tree's) (N = 0: off), "
                     "from the same frames; rows in JSON.slivers.json (docs/labelling.md, 'Fourteenth "
                     "round')")
-    ap.add_argument("--free-space", default="", metavar="I:E[:S[:A]],…",
-                    help="with --slivers, one a variant in order: the pass's free-space share read without the "
-                    "silhouette's outer I rings and (E = 1) the scan's depth edges, (S > 0) the regions cut at "
-                    "the depth steps of more than S footprints and (A > 0) a region tried only when it holds A of a "
-                    "whole part's projected area at its depth (default: the tree's; docs/labelling.md, 'Twenty-first "
-                    "round', 'Twenty-third round', 'Twenty-fourth round')")
+    ap.add_argument("--free-space", default="", metavar="S:A,…",
+                    help="with --slivers, one a variant in order: the pass's regions cut at the depth steps of more "
+                    "than S footprints (0: no cut) and (A > 0) a region tried only when it holds A of a whole part's "
+                    "projected area at its depth (default: the tree's; docs/labelling.md, 'Twenty-third round', "
+                    "'Twenty-fourth round')")
     ap.add_argument("--no-causes", action="store_true",
                     help="with --diagnose: score without the scene's true surfaces (no cause split; a held-out set)")
     ap.add_argument("--kinds", default="", metavar="F1,F2,…",
@@ -1383,7 +1371,7 @@ def main() -> int:
         except ValueError as e:
             raise SystemExit(f"error: {e}") from None
         if SLIVERS is None or len(FREE) != len(SLIVERS):
-            raise SystemExit(f"error: --free-space takes one I:E[:S] a --slivers variant, got {args.free_space!r}")
+            raise SystemExit(f"error: --free-space takes one S:A a --slivers variant, got {args.free_space!r}")
     if args.fits_cache is not None:
         if not args.diagnose or args.seed_px is not None or args.config is not None:
             raise SystemExit("error: --fits-cache is a --diagnose option, not with --seed-px or --config")

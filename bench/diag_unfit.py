@@ -23,12 +23,11 @@ surface it is, within :data:`VISIBLE_MM`):
 
 With ``--split N`` (docs/labelling.md, "Twenty-third round") the unexplained regions are those the pass labels with its
 regions cut at the scan's depth steps of more than N footprints (:func:`zcut.sliver_fits.depth_steps`;
-``SliverParams.split_steps``), the excess at those steps in no region, and the oracle runs with the cut and the free space read off the rim and edges
-(``free_inset_px`` 2, ``free_skip_edges``): what the lever leaves of each instance's region. With ``--area-share A``
-(docs/labelling.md, "Twenty-fourth round") a region is too small under max(``--min-px`` N, A × a whole part's projected
-area at its median depth) (:func:`zcut.sliver_fits.projected_area_px`; ``SliverParams.min_area_share``), and with
-``--oracle-free I:E`` the oracle reads the free space without I rings and (E = 1) the depth edges (default: 2:1 with
-``--split``, else the whole silhouette) — the reading of the variant diagnosed.
+``SliverParams.split_steps``), the excess at those steps in no region, and the oracle runs with the cut: what the lever
+leaves of each instance's region. With ``--area-share A`` (docs/labelling.md, "Twenty-fourth round") a region is too
+small under max(``--min-px`` N, A × a whole part's projected area at its median depth)
+(:func:`zcut.sliver_fits.projected_area_px`; ``SliverParams.min_area_share``). The oracle reads the free space on the
+whole silhouette, as the method does.
 
 The causes' shares of the excess on unfitted instances are summed in pixels. Per frame also the instances found (those
 of >= 40 visible px matched) and the fully visible ones matched (bench/bench_fits.py's rule: >= 95 % of the pixels
@@ -114,19 +113,16 @@ def _first_hits(parts: list[tuple[np.ndarray, np.ndarray]], K: tuple[float, floa
 
 def _oracle(xyz: np.ndarray, valid: np.ndarray, mask: np.ndarray, model: Any, poses: np.ndarray, sigma: float,
             K: tuple[float, float, float, float], true_pose_centre: np.ndarray, size: float, *,
-            split: float = 0.0, free: tuple[int, bool] | None = None) -> dict[str, Any]:
+            split: float = 0.0) -> dict[str, Any]:
     """The sliver pass (the method's parameters; ``split`` > 0: the regions cut at depth steps of more than ``split``
-    footprints, the free space read off the rim and edges unless ``free`` (I, E) says how) on ``mask`` alone; when it
-    refuses, the bound that does."""
+    footprints) on ``mask`` alone; when it refuses, the bound that does."""
     from replay.pipeline import explained as pe
     from zcut.sliver_fits import SliverParams, fit_slivers
 
     base = SliverParams(min_px=1, max_px=10 ** 9, max_regions=1, coarse=pe.SLIVER_COARSE, refine=pe.SLIVER_REFINE,
                         max_see_through=pe.SLIVER_MAX_SEE_THROUGH)
     if split:
-        base = dataclasses.replace(base, split_steps=float(split), free_inset_px=2, free_skip_edges=True)
-    if free is not None:
-        base = dataclasses.replace(base, free_inset_px=int(free[0]), free_skip_edges=bool(free[1]))
+        base = dataclasses.replace(base, split_steps=float(split))
 
     def run(p: SliverParams) -> list[Any]:
         return fit_slivers(xyz, valid, mask, model, poses, sigma_mm=sigma, params=p, intrinsics=K)
@@ -147,8 +143,7 @@ def _oracle(xyz: np.ndarray, valid: np.ndarray, mask: np.ndarray, model: Any, po
 
 
 def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True, split: float = 0.0,
-                min_px: int | None = None, area_share: float = 0.0, oracle_free: tuple[int, bool] | None = None
-                ) -> dict[str, Any]:
+                min_px: int | None = None, area_share: float = 0.0) -> dict[str, Any]:
     from replay.logs import layout
     from replay.pipeline import explained as pe
     from zcut import explained as ex
@@ -283,8 +278,7 @@ def frame_split(log: Path, frame: Any, job: Any, ff: Any, *, oracle: bool = True
         row["unexplained_visible_px"] = un_own
         if oracle and un_own >= ORACLE_MIN_PX and np.isfinite(sigma) and len(poses):
             mask = (un.ravel() & (flat_inst == i) & (tdist.ravel() <= VISIBLE_MM)).reshape(H, W)
-            row.update(_oracle(xyz, valid, mask, model, poses, sigma, Kt, true_c[i], size, split=split,
-                               free=oracle_free))
+            row.update(_oracle(xyz, valid, mask, model, poses, sigma, Kt, true_c[i], size, split=split))
         else:
             row["oracle"] = f"not run (< {ORACLE_MIN_PX} unexplained visible px)"
         rows.append(row)
@@ -317,28 +311,19 @@ def main() -> int:
     ap = B.diag_arguments(__doc__.splitlines()[0])
     ap.add_argument("--no-oracle", action="store_true", help="skip the oracle sliver fits")
     ap.add_argument("--split", type=float, default=0.0, metavar="N", help="the pass's regions cut at the scan's depth "
-                    "steps of more than N footprints, the oracle with the cut and the free space read off the rim and "
-                    "edges (docs/labelling.md, 'Twenty-third round')")
+                    "steps of more than N footprints, the oracle with the cut (docs/labelling.md, 'Twenty-third round')")
     ap.add_argument("--min-px", type=int, default=None, metavar="N", help="the pass's size floor (default: the "
                     "method's SLIVER_MIN_PX)")
     ap.add_argument("--area-share", type=float, default=0.0, metavar="A", help="a region too small also under A of a "
                     "whole part's projected area at its depth (docs/labelling.md, 'Twenty-fourth round')")
-    ap.add_argument("--oracle-free", default=None, metavar="I:E", help="the oracle's free-space reading: without I "
-                    "rings and (E = 1) the depth edges (default: 2:1 with --split, else the whole silhouette)")
     args = ap.parse_args()
     if args.min_px is not None and args.min_px < 1 or not 0.0 <= args.area_share <= 1.0:
         raise SystemExit(f"error: --min-px takes N >= 1 and --area-share A in [0, 1], got {args.min_px} and "
                          f"{args.area_share}")
-    free = None
-    if args.oracle_free is not None:
-        f = args.oracle_free.split(":")
-        if len(f) != 2 or not f[0].isdigit() or f[1] not in ("0", "1"):
-            raise SystemExit(f"error: --oracle-free takes I:E (I >= 0, E 0 or 1), got {args.oracle_free!r}")
-        free = (int(f[0]), f[1] == "1")
     out = []
     for frame, job, ff in B.diag_frames(args):
         row = frame_split(args.log, frame, job, ff, oracle=not args.no_oracle, split=args.split, min_px=args.min_px,
-                          area_share=args.area_share, oracle_free=free)
+                          area_share=args.area_share)
         out.append(row)
         print(json.dumps({k: v for k, v in row.items() if k != "unfitted"}, indent=1, default=float), flush=True)
     if args.json is not None:

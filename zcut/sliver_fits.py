@@ -20,11 +20,7 @@ makes likely and a constraint the scan gives for free:
    (occluded by it) but not in front of it. Over the posed model's silhouette (the valid pixels whose
    ray meets it, :meth:`zcut.fits.model.PartModel.ray_depths`), a pixel whose point lies farther than
    k × Err behind the model's first hit saw through the model; a pose whose share of such pixels
-   exceeds :attr:`SliverParams.max_see_through` is refused. The share may be read on part of the silhouette only:
-   without its outer :attr:`SliverParams.free_inset_px` rings of pixels (the pose's sub-pixel error and the pixel's
-   footprint) and without the pixels at a depth edge of the scan (:attr:`SliverParams.free_skip_edges`: a 4-neighbour
-   invalid or more than :data:`EDGE_FOOTPRINTS` footprints off in depth, where a sensor's mixed pixels and
-   interreflection ghosts lie; docs/labelling.md, "Twenty-first round").
+   exceeds :attr:`SliverParams.max_see_through` is refused.
    With :attr:`SliverParams.split_steps` N > 0 the regions are cut at the scan's depth steps before anything else:
    the unexplained pixels with a valid 4-neighbour more than N footprints off in depth (:func:`depth_steps`; an
    invalid neighbour does not cut) take part in no region, so a region no longer joins two things at different depths
@@ -54,16 +50,12 @@ from zcut.errors import InputShapeError
 from zcut.fits import PartModel
 from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
 
-__all__ = ["SliverFit", "SliverParams", "depth_edges", "depth_steps", "fit_slivers", "projected_area_px",
-           "see_through_share"]
+__all__ = ["SliverFit", "SliverParams", "depth_steps", "fit_slivers", "projected_area_px", "see_through_share"]
 
 EIGHT = np.ones((3, 3), bool)
 EIGHT.setflags(write=False)
 #: The first ICP of a guess runs with this many times the gate.
 WIDE = 2.5
-#: A valid pixel is at a depth edge when a 4-neighbour is invalid or more than this many footprints (its depth / fx)
-#: off in depth (docs/labelling.md, "Seventeenth round": where the ray-traced over-labelling lies).
-EDGE_FOOTPRINTS = 10.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,11 +87,6 @@ class SliverParams:
         ... and the pose explains at least this share of the region's pixels.
     max_see_through : float
         ... and at most this share of its silhouette was seen through (free space).
-    free_inset_px : int
-        The free-space share is read without the silhouette's outer this many rings of pixels (chessboard distance
-        to the pixels whose centre's ray misses the posed model; 0: the whole silhouette).
-    free_skip_edges : bool
-        ... and without the pixels at a depth edge of the scan (:data:`EDGE_FOOTPRINTS`).
     split_steps : float
         When > 0, the unexplained pixels at a depth step of more than this many footprints (:func:`depth_steps`) take
         part in no region: the regions are cut there before they are counted, sized and posed (0: no cut).
@@ -140,8 +127,6 @@ class SliverParams:
     max_residual: float = 1.5
     min_share: float = 0.8
     max_see_through: float = 0.05
-    free_inset_px: int = 0
-    free_skip_edges: bool = False
     split_steps: float = 0.0
     min_area_share: float = 0.0
     max_points: int = 400
@@ -158,8 +143,6 @@ class SliverParams:
                 raise ValueError(f"SliverParams.{name} must be at least 1, got {getattr(self, name)!r}")
         if not float(self.split_steps) >= 0:
             raise ValueError(f"SliverParams.split_steps must be at least 0, got {self.split_steps!r}")
-        if int(self.free_inset_px) < 0:
-            raise ValueError(f"SliverParams.free_inset_px must be at least 0, got {self.free_inset_px!r}")
         if not 0 <= int(self.coarse) <= int(self.iterations):
             raise ValueError(f"SliverParams.coarse must lie in [0, iterations], got {self.coarse!r}")
         for name in ("gate_mm", "k", "max_residual"):
@@ -204,13 +187,9 @@ def _intrinsics(xyz_mm: np.ndarray, valid: np.ndarray) -> tuple[float, float, fl
 
 def see_through_share(xyz_mm: np.ndarray, valid: np.ndarray, model: PartModel, pose: np.ndarray, *,
                       intrinsics: tuple[float, float, float, float], sigma_mm: float, k: float = 3.0,
-                      floor_mm: float = 0.1, inset_px: int = 0, skip_edges: bool = False) -> tuple[float, int]:
+                      floor_mm: float = 0.1) -> tuple[float, int]:
     """(share, silhouette px): of the valid pixels whose camera ray meets the model posed at ``pose``, the share
     whose point lies more than k × Err behind the model's first hit (the camera saw through the model there).
-    With ``inset_px`` the pixels of the silhouette's outer ``inset_px`` rings (the silhouette of the pixel centres'
-    rays; chessboard distance to its outside at most ``inset_px``) do not count, with ``skip_edges`` nor those at a
-    depth edge of the scan (a 4-neighbour not in ``valid`` or more than :data:`EDGE_FOOTPRINTS` footprints off in
-    depth); the silhouette px are then the pixels that count.
 
     Parameters
     ----------
@@ -244,61 +223,12 @@ def see_through_share(xyz_mm: np.ndarray, valid: np.ndarray, model: PartModel, p
     d = p / rng[:, None]
     hit = model.ray_depths(np.repeat((-R.T @ t)[None], len(p), axis=0), d @ R)
     seen = np.isfinite(hit)
-    if inset_px > 0 or skip_edges:
-        seen &= _counted(xyz_mm, valid, model, pose, (r0, r1, c0, c1), fx, fy, cx, cy, inset_px, skip_edges)[win]
     if not seen.any():
         return 0.0, 0
     foot = np.abs(p[seen, 2]) / fx
     err = np.maximum(floor_mm, np.sqrt(sigma_mm ** 2 + foot ** 2 / 2.0))
     behind = (rng[seen] - hit[seen]) > k * err
     return float(behind.mean()), int(seen.sum())
-
-
-def _counted(xyz_mm: np.ndarray, valid: np.ndarray, model: PartModel, pose: np.ndarray,
-             box: tuple[int, int, int, int], fx: float, fy: float, cx: float, cy: float, inset_px: int,
-             skip_edges: bool) -> np.ndarray:
-    """(r1 - r0, c1 - c0) bool: the window's pixels that count in :func:`see_through_share`: deeper than ``inset_px``
-    rings inside the posed model's silhouette (its pixel centres' rays), and with ``skip_edges`` not at a depth edge."""
-    r0, r1, c0, c1 = box
-    H, W = valid.shape
-    keep = np.ones((r1 - r0, c1 - c0), bool)
-    if inset_px > 0:
-        R, t = pose[:3, :3], pose[:3, 3]
-        gr, gc = np.mgrid[r0:r1, c0:c1]
-        d = np.stack([(gc - cx) / fx, (gr - cy) / fy, np.ones(gr.shape)], axis=-1).reshape(-1, 3)
-        d /= np.linalg.norm(d, axis=1)[:, None]
-        sil = np.isfinite(model.ray_depths(np.repeat((-R.T @ t)[None], len(d), axis=0), d @ R)).reshape(gr.shape)
-        ring = ndimage.distance_transform_cdt(np.pad(sil, 1), metric="chessboard")[1:-1, 1:-1]
-        keep &= ring > inset_px
-    if skip_edges:
-        a0, a1, b0, b1 = max(r0 - 1, 0), min(r1 + 1, H), max(c0 - 1, 0), min(c1 + 1, W)
-        z = np.full((r1 - r0 + 2, c1 - c0 + 2), np.nan)
-        z[a0 - r0 + 1:a1 - r0 + 1, b0 - c0 + 1:b1 - c0 + 1] = np.where(
-            valid[a0:a1, b0:b1], np.asarray(xyz_mm[a0:a1, b0:b1, 2], np.float64), np.nan)
-        keep &= ~_edges_padded(z, fx)
-    return keep
-
-
-def _edges_padded(z: np.ndarray, fx: float) -> np.ndarray:
-    """(h - 2, w - 2) bool: the depth edges of ``z``'s inside (``z`` padded by one pixel, NaN where not valid): a
-    4-neighbour NaN or more than :data:`EDGE_FOOTPRINTS` footprints (the pixel's depth / fx) off in depth."""
-    mid = z[1:-1, 1:-1]
-    tol = EDGE_FOOTPRINTS * np.abs(mid) / fx
-    edge = np.zeros(mid.shape, bool)
-    with np.errstate(invalid="ignore"):
-        for n in (z[1:-1, 2:], z[1:-1, :-2], z[2:, 1:-1], z[:-2, 1:-1]):
-            edge |= ~np.isfinite(n) | (np.abs(n - mid) > tol)
-    return edge
-
-
-def depth_edges(xyz_mm: np.ndarray, valid: np.ndarray, fx: float) -> np.ndarray:
-    """(H, W) bool: the pixels at a depth edge of the scan — a 4-neighbour not in ``valid`` (or outside the image)
-    or more than :data:`EDGE_FOOTPRINTS` footprints (the pixel's depth / ``fx``) off in depth. An invalid pixel is
-    an edge when one of its neighbours is (NaN compares unequal): callers read it on valid pixels."""
-    H, W = valid.shape
-    z = np.full((H + 2, W + 2), np.nan)
-    z[1:-1, 1:-1] = np.where(valid, np.asarray(xyz_mm[..., 2], np.float64), np.nan)
-    return _edges_padded(z, float(fx))
 
 
 def depth_steps(xyz_mm: np.ndarray, valid: np.ndarray, fx: float, n: float) -> np.ndarray:
@@ -521,8 +451,7 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
             if _overlap(model, T, taken) > p.max_overlap:
                 continue
             st, sil = see_through_share(xyz_mm, valid, model, T, intrinsics=intr, sigma_mm=sigma_mm, k=p.k,
-                                        floor_mm=p.floor_mm, inset_px=p.free_inset_px,
-                                        skip_edges=p.free_skip_edges)
+                                        floor_mm=p.floor_mm)
             if sil and st <= p.max_see_through:
                 best = (res, T, inl, st)
                 break

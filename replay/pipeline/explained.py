@@ -110,11 +110,6 @@ SLIVER_REFINE = 8
 #: ... and a pose whose silhouette the camera saw through on more than this share of its pixels is refused (free
 #: space: :attr:`zcut.sliver_fits.SliverParams.max_see_through`; docs/labelling.md, "Eighteenth round")
 SLIVER_MAX_SEE_THROUGH = 0.05
-#: ... that share read without the silhouette's outer this many rings of pixels
-#: (:attr:`zcut.sliver_fits.SliverParams.free_inset_px`) and, when True, without the scan's depth-edge pixels
-#: (:attr:`zcut.sliver_fits.SliverParams.free_skip_edges`; docs/labelling.md, "Twenty-first round")
-SLIVER_FREE_INSET_PX = 0
-SLIVER_FREE_SKIP_EDGES = False
 #: ... and, when > 0, the regions cut at the scan's depth steps of more than this many footprints before they are sized
 #: and posed (:attr:`zcut.sliver_fits.SliverParams.split_steps`; docs/labelling.md, "Twenty-third round", 3 since the
 #: "Twenty-fourth round": the fits' own segmentation's ``jump_px``; 0: no cut)
@@ -430,7 +425,6 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
                         sigma_mm=sigma, intrinsics=intr,
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
                                             refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH,
-                                            free_inset_px=SLIVER_FREE_INSET_PX, free_skip_edges=SLIVER_FREE_SKIP_EDGES,
                                             split_steps=SLIVER_SPLIT_STEPS, min_area_share=SLIVER_MIN_AREA_SHARE,
                                             k=float(p.k),
                                             floor_mm=float(p.err_floor_mm)))

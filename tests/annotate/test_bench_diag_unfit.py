@@ -51,11 +51,9 @@ def test_a_part_behind_the_camera_or_off_the_image_has_no_silhouette(bench) -> N
 
 
 @pytest.mark.parametrize("extra, what", [(["--area-share", "1.5"], "--area-share A in [0, 1], got None and 1.5"),
-                                         (["--min-px", "0"], "--min-px takes N >= 1"),
-                                         (["--oracle-free", "2:3"], "--oracle-free takes I:E (I >= 0, E 0 or 1), "
-                                                                    "got '2:3'")])
-def test_bad_floor_or_reading_refused_in_one_line(bench, monkeypatch, extra: list[str], what: str
-                                                  ) -> None:  # type: ignore[no-untyped-def]
+                                         (["--min-px", "0"], "--min-px takes N >= 1")])
+def test_bad_floor_refused_in_one_line(bench, monkeypatch, extra: list[str], what: str
+                                       ) -> None:  # type: ignore[no-untyped-def]
     monkeypatch.setattr("sys.argv", ["diag_unfit.py", "/nonexistent.mcap", *extra])
     with pytest.raises(SystemExit) as e:
         bench.main()
