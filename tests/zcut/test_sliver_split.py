@@ -33,8 +33,9 @@ def nut():  # type: ignore[no-untyped-def]
     return sliver_scene.nut()
 
 
-def _edges(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """Pixel by pixel: a 4-neighbour outside the image, invalid, or more than EDGE_FOOTPRINTS footprints off in z."""
+def _marked(xyz: np.ndarray, valid: np.ndarray, n: float, *, edges: bool) -> np.ndarray:
+    """Pixel by pixel: a valid pixel with a valid 4-neighbour (inside the image) more than n footprints off in z; with
+    ``edges`` also one whose 4-neighbour is outside the image or invalid (a depth edge)."""
     H, W = valid.shape
     out = np.zeros((H, W), bool)
     for r in range(H):
@@ -43,27 +44,24 @@ def _edges(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
                 continue
             z = xyz[r, c, 2]
             for a, b in ((r, c + 1), (r, c - 1), (r + 1, c), (r - 1, c)):
-                if not (0 <= a < H and 0 <= b < W) or not valid[a, b] \
-                        or abs(xyz[a, b, 2] - z) > EDGE_FOOTPRINTS * abs(z) / FX:
+                if not (0 <= a < H and 0 <= b < W and valid[a, b]):
+                    if edges:
+                        out[r, c] = True
+                        break
+                elif abs(xyz[a, b, 2] - z) > n * abs(z) / FX:
                     out[r, c] = True
                     break
     return out
+
+
+def _edges(xyz: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """A 4-neighbour outside the image, invalid, or more than EDGE_FOOTPRINTS footprints off in z."""
+    return _marked(xyz, valid, EDGE_FOOTPRINTS, edges=True)
 
 
 def _steps_reference(xyz: np.ndarray, valid: np.ndarray, n: float) -> np.ndarray:
-    """Pixel by pixel: a valid pixel with a valid 4-neighbour (inside the image) more than n footprints off in z."""
-    H, W = valid.shape
-    out = np.zeros((H, W), bool)
-    for r in range(H):
-        for c in range(W):
-            if not valid[r, c]:
-                continue
-            z = xyz[r, c, 2]
-            for a, b in ((r, c + 1), (r, c - 1), (r + 1, c), (r - 1, c)):
-                if 0 <= a < H and 0 <= b < W and valid[a, b] and abs(xyz[a, b, 2] - z) > n * abs(z) / FX:
-                    out[r, c] = True
-                    break
-    return out
+    """A valid 4-neighbour (inside the image) more than n footprints off in z."""
+    return _marked(xyz, valid, n, edges=False)
 
 
 def _scene(nut):  # type: ignore[no-untyped-def]
