@@ -231,6 +231,15 @@ def see_through_share(xyz_mm: np.ndarray, valid: np.ndarray, model: PartModel, p
     return float(behind.mean()), int(seen.sum())
 
 
+def _camera(xyz_mm: np.ndarray, valid: np.ndarray,
+            intrinsics: tuple[float, float, float, float] | None) -> tuple[float, float, float, float] | None:
+    """(fx, fy, cx, cy): the caller's ``intrinsics``, or estimated from the cloud (:func:`_intrinsics`; None when it
+    cannot be)."""
+    if intrinsics is None:
+        return _intrinsics(xyz_mm, valid)
+    return float(intrinsics[0]), float(intrinsics[1]), float(intrinsics[2]), float(intrinsics[3])
+
+
 def depth_steps(xyz_mm: np.ndarray, valid: np.ndarray, fx: float, n: float) -> np.ndarray:
     """(H, W) bool: the valid pixels at a depth step of the scan — a 4-neighbour in ``valid`` more than ``n``
     footprints (the pixel's depth / ``fx``) off in depth. An invalid neighbour (or the image's border) is no step."""
@@ -351,8 +360,7 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
         return []
     intr: tuple[float, float, float, float] | None = None
     if p.split_steps > 0:  # the regions cut at the scan's depth steps: the step pixels take part in none
-        intr = _intrinsics(xyz_mm, valid) if intrinsics is None else (
-            float(intrinsics[0]), float(intrinsics[1]), float(intrinsics[2]), float(intrinsics[3]))
+        intr = _camera(xyz_mm, valid, intrinsics)
         if intr is None:
             return []
         mask &= ~depth_steps(xyz_mm, valid, intr[0], p.split_steps)
@@ -362,8 +370,7 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     keep = keep[keep > 0]
     if p.min_area_share > 0 and keep.size:  # the floor as a share of a whole part's projected area at its depth
         if intr is None:
-            intr = _intrinsics(xyz_mm, valid) if intrinsics is None else (
-                float(intrinsics[0]), float(intrinsics[1]), float(intrinsics[2]), float(intrinsics[3]))
+            intr = _camera(xyz_mm, valid, intrinsics)
             if intr is None:
                 return []
         z_med = np.asarray(ndimage.median(np.asarray(xyz_mm[..., 2], np.float64), labels, keep), np.float64)
@@ -373,8 +380,7 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
     if not keep.size:
         return []
     if intr is None:
-        intr = _intrinsics(xyz_mm, valid) if intrinsics is None else (
-            float(intrinsics[0]), float(intrinsics[1]), float(intrinsics[2]), float(intrinsics[3]))
+        intr = _camera(xyz_mm, valid, intrinsics)
     if intr is None:
         return []
     flat_xyz = np.asarray(xyz_mm, np.float64).reshape(-1, 3)
