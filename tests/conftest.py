@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 # the command line's process settings (replay.process.configure_process) before numba is imported:
@@ -28,6 +30,8 @@ os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from real_data_path import REAL_DATA  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -68,6 +72,16 @@ def browser():
         b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         yield b
         b.close()
+
+
+@pytest.fixture(scope="session")
+def warmup_run() -> subprocess.CompletedProcess:
+    """``python -m replay.warmup`` (what scripts/install.sh runs: every kernel group compiled into numba's cache)
+    run once per session from the checkout, its output captured: tests/cli/test_cli_warmup.py checks what it
+    prints, and the fuzz corpus (tests/fuzz/test_fuzz_fast.py) needs its kernels compiled before any case runs
+    under its time cap; the corpus process ran the whole warm-up a second time (~10 s)."""
+    return subprocess.run([sys.executable, "-m", "replay.warmup"], capture_output=True, text=True, timeout=1800,
+                          cwd=ROOT)
 
 
 @pytest.fixture(scope="session")
