@@ -26,6 +26,11 @@ atexit.register(shutil.rmtree, _CACHE, True)
 # its kernels), and the next process reads it, as an installed zcut does: under PYTHONDONTWRITEBYTECODE=1 every
 # process compiled every module of the checkout again (+0.2 CPU s a replay, docs/performance.md).
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+# and this process too, from here on: pytest keeps the test modules it rewrites for their asserts (and Python the
+# helper modules they import) as bytecode in those folders, and reads it back in the next run while the source is
+# unchanged (size and modification time); under PYTHONDONTWRITEBYTECODE=1 every run rewrote and compiled every test
+# module again (docs/testing.md, the round of 2026-12-08a).
+sys.dont_write_bytecode = False
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
