@@ -368,3 +368,72 @@ def close_page(page) -> None:
     ctx = page.context
     page.close()
     ctx.close()
+
+
+def _content_digest(x, h, seen: set[int]) -> None:
+    """Feed ``x``'s content into the hash ``h``: arrays by dtype, shape and bytes, dataclasses, mappings and
+    sequences field by field, scalars by their repr, a KD-tree by its points and leaf size. Anything else is
+    refused (a key must never fall back on an object's identity)."""
+    import dataclasses
+    import enum
+    from collections.abc import Mapping
+
+    from scipy.spatial import cKDTree
+
+    if isinstance(x, np.ndarray):
+        a = np.ascontiguousarray(x)
+        h.update(f"a{a.dtype}{a.shape}".encode())
+        h.update(a.tobytes() if a.dtype != object else repr(a.tolist()).encode())
+    elif x is None or isinstance(x, (bool, int, float, complex, str, bytes, np.generic, enum.Enum, Path)):
+        h.update(f"s{type(x).__name__}:{x!r}".encode())
+    elif isinstance(x, cKDTree):
+        h.update(f"kd{x.leafsize}".encode())
+        _content_digest(np.asarray(x.data), h, seen)
+    elif id(x) in seen:
+        h.update(b"again")
+    elif dataclasses.is_dataclass(x) and not isinstance(x, type):
+        seen.add(id(x))
+        h.update(f"d{type(x).__qualname__}".encode())
+        for f in dataclasses.fields(x):
+            h.update(f.name.encode())
+            _content_digest(getattr(x, f.name), h, seen)
+    elif isinstance(x, Mapping):  # a dict, the config's bank
+        seen.add(id(x))
+        h.update(f"m{len(x)}".encode())
+        for k in sorted(x, key=repr):
+            _content_digest(k, h, seen)
+            _content_digest(x[k], h, seen)
+    elif isinstance(x, (list, tuple, frozenset, set)):
+        seen.add(id(x))
+        h.update(f"l{type(x).__name__}{len(x)}".encode())
+        for v in (sorted(x, key=repr) if isinstance(x, (set, frozenset)) else x):
+            _content_digest(v, h, seen)
+    else:
+        raise TypeError(f"no content key for a {type(x).__qualname__}")
+
+
+def fits_once(monkeypatch, memo: dict) -> None:
+    """``annotate.fits.fit_frame`` (a page server's background fits of a frame: ``explained`` with the sliver pass,
+    most of a fitted page's time) computed once per distinct call in ``memo`` while ``monkeypatch`` holds: the
+    servers of one test module each fitted the same frame of the same log anew. The key is the content of every
+    argument (the frame's points and fields, the pipeline's result the fits start from: valid pixels, zone, the
+    removal and the registration to the last bit, the config, the bin model), so a call whose inputs differ in
+    any bit computes its own fits; an equal call gets a deep copy of the fits the first one made, which is what
+    the deterministic fits give again (tests/zcut/fits/ hold them to their digests; the page tests that restart a
+    server rely on it). A fit stopped under way (``zcut.cancel``) raises as before and keeps nothing."""
+    import copy
+    import hashlib
+
+    import annotate.fits as fits
+
+    real = fits.fit_frame
+
+    def fit_frame(frame, job, config, bin_model):
+        h = hashlib.sha256()
+        _content_digest((frame, job, config, bin_model), h, set())
+        key = h.hexdigest()
+        if key not in memo:
+            memo[key] = real(frame, job, config, bin_model)
+        return copy.deepcopy(memo[key])
+
+    monkeypatch.setattr(fits, "fit_frame", fit_frame)

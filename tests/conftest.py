@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 from pathlib import Path
 
 # the command line's process settings (replay.process.configure_process) before numba is imported:
@@ -24,10 +26,17 @@ atexit.register(shutil.rmtree, _CACHE, True)
 # its kernels), and the next process reads it, as an installed zcut does: under PYTHONDONTWRITEBYTECODE=1 every
 # process compiled every module of the checkout again (+0.2 CPU s a replay, docs/performance.md).
 os.environ.pop("PYTHONDONTWRITEBYTECODE", None)
+# and this process too, from here on: pytest keeps the test modules it rewrites for their asserts (and Python the
+# helper modules they import) as bytecode in those folders, and reads it back in the next run while the source is
+# unchanged (size and modification time); under PYTHONDONTWRITEBYTECODE=1 every run rewrote and compiled every test
+# module again (docs/testing.md, the round of 2026-12-08a).
+sys.dont_write_bytecode = False
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from real_data_path import REAL_DATA  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
@@ -68,6 +77,16 @@ def browser():
         b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         yield b
         b.close()
+
+
+@pytest.fixture(scope="session")
+def warmup_run() -> subprocess.CompletedProcess:
+    """``python -m replay.warmup`` (what scripts/install.sh runs: every kernel group compiled into numba's cache)
+    run once per session from the checkout, its output captured: tests/cli/test_cli_warmup.py checks what it
+    prints, and the fuzz corpus (tests/fuzz/test_fuzz_fast.py) needs its kernels compiled before any case runs
+    under its time cap; the corpus process ran the whole warm-up a second time (~10 s)."""
+    return subprocess.run([sys.executable, "-m", "replay.warmup"], capture_output=True, text=True, timeout=1800,
+                          cwd=ROOT)
 
 
 @pytest.fixture(scope="session")

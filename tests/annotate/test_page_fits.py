@@ -52,6 +52,21 @@ def _server(log, db, **kw):
                                        **kw))
 
 
+@pytest.fixture(scope="module")
+def fits_memo() -> dict:
+    return {}
+
+
+@pytest.fixture
+def fits_once(fits_memo, monkeypatch):
+    """Frame 0's background fits made once for the servers of the tests that ask for it (tests/annotate_helpers.py,
+    ``fits_once``: keyed by the content of every input); not for the test of a page used while its frames are
+    fitted, whose fits must take their time."""
+    from annotate_helpers import fits_once as memoize
+
+    memoize(monkeypatch, fits_memo)
+
+
 def _fits(srv, i, client=None):
     """The fits bundle of frame ``i``, however long a server busy fitting takes to answer (httpx's default 5 s
     ran out once at load 16, the server process fitting frame 0 on two loaded cores)."""
@@ -70,7 +85,7 @@ def _fitted(srv, i=0):
     return _fits(srv, i)
 
 
-def test_fits_are_shown_rejected_with_one_key_and_remembered(spheres_log, tmp_path, browser):
+def test_fits_are_shown_rejected_with_one_key_and_remembered(spheres_log, tmp_path, browser, fits_once):
     db = tmp_path / "labels.sqlite"
     srv = _server(spheres_log, db)
     try:
@@ -220,7 +235,7 @@ def test_zcut_annotate_takes_part_model(spheres_log, tmp_path):
         srv.stderr_lines
 
 
-def test_shift_u_takes_the_proposals_only(spheres_log, tmp_path, browser):
+def test_shift_u_takes_the_proposals_only(spheres_log, tmp_path, browser, fits_once):
     """Shift+U accepts every undecided proposal of the fits as outliers and nothing else (not the review
     groups, which Shift+A would take too): the saved label is exactly the proposals' pixels, one input, and
     the line under the list says beforehand how many it takes (what the page-only person of

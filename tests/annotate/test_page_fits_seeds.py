@@ -46,6 +46,21 @@ def spheres_log(tmp_path_factory):
                      size=SIZE)
 
 
+@pytest.fixture(scope="module")
+def fits_memo() -> dict:
+    return {}
+
+
+@pytest.fixture(autouse=True)
+def fits_once(fits_memo, monkeypatch):
+    """Frame 0's background fits made once for the module's four servers (tests/annotate_helpers.py, ``fits_once``:
+    keyed by the content of every input): what the tests check is the seeds' way through the store, with the
+    deterministic fits a restarted server finds again (module docstring)."""
+    from annotate_helpers import fits_once as memoize
+
+    memoize(monkeypatch, fits_memo)
+
+
 def _server(log, db, annotator="alice"):
     return LiveServer(open_server_page(log, db, annotator=annotator,
                                        choose_bin_model=PipelineOptions().model_chooser()))

@@ -38,6 +38,20 @@ def _server(log, db):
     return LiveServer(open_server_page(log, db, annotator="alice", choose_bin_model=PipelineOptions().model_chooser()))
 
 
+@pytest.fixture(scope="module")
+def fits_memo() -> dict:
+    return {}
+
+
+@pytest.fixture(autouse=True)
+def fits_once(fits_memo, monkeypatch):
+    """Frame 0's background fits made once for the module's three servers (tests/annotate_helpers.py, ``fits_once``:
+    keyed by the content of every input): the tests check how the page draws and saves the fits' proposals."""
+    from annotate_helpers import fits_once as memoize
+
+    memoize(monkeypatch, fits_memo)
+
+
 def _url(srv) -> str:
     return f"{srv.base}/?token={srv.token}"
 

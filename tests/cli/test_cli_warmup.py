@@ -4,15 +4,13 @@ says what it compiles as it goes: a line per kernel group, with its time."""
 from __future__ import annotations
 
 import re
-import subprocess
-import sys
 
 import pytest
 
 
 @pytest.mark.slow
-def test_the_warmup_prints_a_line_per_kernel_group():
-    r = subprocess.run([sys.executable, "-m", "replay.warmup"], capture_output=True, text=True, timeout=1800)
+def test_the_warmup_prints_a_line_per_kernel_group(warmup_run):
+    r = warmup_run  # the session's `python -m replay.warmup` (tests/conftest.py; the fuzz corpus relies on it too)
     assert r.returncode == 0, r.stderr
     lines = r.stderr.splitlines()
     groups = [ln for ln in lines if re.match(r"zcut: \[\d/\d\] .+… \d+ s$", ln)]

@@ -90,14 +90,16 @@ def load_corpus(folder: Path) -> Corpus:
     return Corpus(folder, files, meta["frames"])
 
 
-def ensure_corpus(folder: Path) -> Corpus:
-    """Build the corpus in ``folder`` (in a separate process) unless it is there already."""
+def ensure_corpus(folder: Path, *, warmed_up: bool = False) -> Corpus:
+    """Build the corpus in ``folder`` (in a separate process) unless it is there already. ``warmed_up``: the
+    caller has run ``python -m replay.warmup`` to its end in this checkout (every kernel compiled into numba's
+    cache), so the corpus process does not run it again."""
     done = folder / "corpus.json"
     if not done.is_file() or json.loads(done.read_text()).get("version") != CORPUS_VERSION:
         folder.mkdir(parents=True, exist_ok=True)
         env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(REPO), str(Path(__file__).parent)]))
-        proc = subprocess.run([PYTHON, __file__, "corpus", str(folder)], env=env, cwd=str(folder),
-                              capture_output=True, text=True)
+        argv = [PYTHON, __file__, "corpus", str(folder), *(["--warmed-up"] if warmed_up else [])]
+        proc = subprocess.run(argv, env=env, cwd=str(folder), capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"building the fuzz corpus in {folder} failed:\n{proc.stderr[-4000:]}")
     return load_corpus(folder)
@@ -197,10 +199,10 @@ def frame_messages(rng: np.random.Generator, n: int, *, h: int = H, w: int = W, 
     return out
 
 
-def build_corpus(folder: Path) -> None:  # runs in its own process (kernels)
+def build_corpus(folder: Path, *, warmed_up: bool = False) -> None:  # runs in its own process (kernels)
     """Write the corpus: hand-made logs (LogWriter and the mcap library, every compression), a
     synthetic log, its results file, an empty-bin log and its bin model, a label store and its
-    export, PCD and PLY files."""
+    export, PCD and PLY files. First the kernels' warm-up, unless ``warmed_up`` (the caller ran it)."""
     from cli.main import main
     from replay.logs.frame import Frame
     from replay.logs.writer import LogWriter
@@ -211,6 +213,8 @@ def build_corpus(folder: Path) -> None:  # runs in its own process (kernels)
     try:  # compile every kernel once here, not in the first cases (a compile can outlast a case's time cap)
         from replay.warmup import main as warmup
     except ImportError:  # pragma: no cover - an older tree
+        warmup = None
+    if warmed_up:
         warmup = None
     if warmup is not None:
         warmup()
@@ -1953,7 +1957,7 @@ def scaled(total: int) -> dict[str, int]:
     return counts
 
 if __name__ == "__main__":
-    if len(sys.argv) == 3 and sys.argv[1] == "corpus":
-        build_corpus(Path(sys.argv[2]))
+    if len(sys.argv) in (3, 4) and sys.argv[1] == "corpus" and sys.argv[3:] in ([], ["--warmed-up"]):
+        build_corpus(Path(sys.argv[2]), warmed_up=sys.argv[3:] == ["--warmed-up"])
     else:
-        sys.exit(f"usage: {sys.argv[0]} corpus DIR")
+        sys.exit(f"usage: {sys.argv[0]} corpus DIR [--warmed-up]")

@@ -37,8 +37,12 @@ def work(tmp_path_factory) -> Path:
 
 
 @pytest.fixture(scope="module")
-def corpus(work):
-    return fuzzgen.ensure_corpus(work / "corpus")
+def corpus(work, warmup_run):
+    """The corpus, its process not running the kernels' warm-up again: the session's run of it
+    (tests/conftest.py, ``warmup_run``: the one tests/cli/test_cli_warmup.py checks) compiled every kernel into
+    numba's cache, so that no case compiles one under its time cap."""
+    assert warmup_run.returncode == 0, warmup_run.stderr[-3000:]
+    return fuzzgen.ensure_corpus(work / "corpus", warmed_up=True)
 
 
 @pytest.fixture(scope="module")

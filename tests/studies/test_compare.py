@@ -15,6 +15,14 @@ from cli.main import main
 
 SIZE = "120x180"
 FRAMES = 3
+#: the comparisons whose subject is not the executor (the output folder's --force, a comparison allowed or refused,
+#: the recording's entities, the stage counts) run in this process, as tests/studies/test_study_inputs.py and
+#: test_every_parameter.py run theirs: two spawned workers cost ~2 s a comparison (their start-up), and
+#: tests/studies/test_compare_workers.py proves the outputs (compare.json, summary.parquet, disagreement.npz, the
+#: recording's rows, the stage counts) of local workers equal those of one process. The tests of what the units
+#: compute from another input (the figures against accuracy's, a results file as a side, no truth, --truth sensor)
+#: keep the default executor (the cores' workers).
+IN_PROCESS = ("--workers", "0")
 
 
 @pytest.fixture(scope="module")
@@ -97,14 +105,14 @@ def test_shared_stages_run_once(data, tmp_path):
     log = data / "log.mcap"
     # A and B differ only in SOR: the bin stages and the z-cut run once per frame, SOR twice
     r = run(CompareOptions(logs=(log,), a=str(data / "sor_default.toml"), b=str(data / "sor.toml"), out=tmp_path / "s",
-                           rrd=False, report=False))
+                           rrd=False, report=False, workers=0))
     assert dict(r.stage_runs) == {"locate_bin": FRAMES, "bin_zone": FRAMES, "method:zcut": FRAMES,
                                   "method:sor": 2 * FRAMES}
     assert r.report["shared"] == {"bin_stages": True, "zone": True, "methods": ["zcut"]}
     assert r.report["config_difference"] == [{"key": "sor.std_ratio", "a": 1.0, "b": 2.0}]
     # another removal: every stage runs for each side
     r = run(CompareOptions(logs=(log,), a=str(data / "sor_default.toml"), b=str(data / "removal.toml"),
-                           out=tmp_path / "r", rrd=False, report=False))
+                           out=tmp_path / "r", rrd=False, report=False, workers=0))
     assert dict(r.stage_runs) == {"locate_bin": 2 * FRAMES, "bin_zone": 2 * FRAMES, "method:zcut": 2 * FRAMES,
                                   "method:sor": 2 * FRAMES}
 
@@ -160,7 +168,7 @@ def test_bad_input_is_one_line(data, tmp_path, capsys, a, b, extra, message):
         return str(data / x) if x.endswith((".toml", ".mcap")) else x
 
     rc, _, err = run_cli(capsys, "compare", data / "log.mcap", "--a", arg(a), "--b", arg(b), "-o", tmp_path / "x",
-                         "--no-rrd", *extra)
+                         "--no-rrd", *IN_PROCESS, *extra)
     if message is None:
         assert rc == 0, err
         return
@@ -183,7 +191,7 @@ def test_a_truth_a_log_lacks_is_one_line_before_anything_is_written(data, tmp_pa
                              "human labels with --labels DB"), err
         assert not (tmp_path / "t").exists() or not any((tmp_path / "t").iterdir())
     rc, out, err = run_cli(capsys, "compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "--truth", "sensor",
-                           "-o", tmp_path / "ok", "--no-rrd", "--json")
+                           "-o", tmp_path / "ok", "--no-rrd", "--json", *IN_PROCESS)
     assert rc == 0, err
     assert "sensor" in json.loads(out)["truth"]
 
@@ -238,7 +246,7 @@ def test_bad_input_is_one_line_before_anything_starts(data, other_labels, tmp_pa
 
 
 def test_existing_outputs_need_force(data, tmp_path, capsys):
-    args = ("compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "-o", tmp_path / "f", "--no-rrd")
+    args = ("compare", data / "log.mcap", "--a", "zcut", "--b", "sor", "-o", tmp_path / "f", "--no-rrd", *IN_PROCESS)
     assert run_cli(capsys, *args)[0] == 0
     rc, _, err = run_cli(capsys, *args)
     assert rc == 1 and "use --force" in err
@@ -249,7 +257,7 @@ def test_the_recording_reads_back(data, tmp_path, capsys):
     import rerun as rr
 
     rc, _, err = run_cli(capsys, "compare", data / "log.mcap", "--a", "zcut", "--b", data / "rho.toml",
-                         "-o", tmp_path / "r")
+                         "-o", tmp_path / "r", *IN_PROCESS)
     assert rc == 0, err
     paths: dict[str, int] = {}
     config_text = ""
