@@ -172,36 +172,6 @@ def _kind_components(flat: np.ndarray, shape: tuple[int, int], r: int) -> tuple[
 NEAR = 8
 # the squared diagonal of a dead box with any other (a living pair's is smaller)
 FAR = np.int64(1) << 61
-# the listing scans read the diagonals a block of BLOCK boxes at a time: a block whose least diagonal cannot enter
-# the list is passed over whole (its diagonals computed and compared in vector lanes, without a branch a box)
-BLOCK = 32
-
-
-@numba.njit(cache=True)
-def _diagonals(r0, c0, r1, c1, a0, b0, a1, b1, out):  # type: ignore[no-untyped-def]  # numba kernel
-    """out[t]: the squared diagonal of box t (r0, c0, r1, c1: slices of one length) united with (a0, b0, a1, b1)."""
-    for t in range(r0.size):
-        dr = max(r1[t], a1) - min(r0[t], a0)
-        dc = max(c1[t], b1) - min(c0[t], b0)
-        out[t] = dr * dr + dc * dc
-
-
-@numba.njit(cache=True)
-def _count_below(v, bound):  # type: ignore[no-untyped-def]  # numba kernel
-    """How many of v are below ``bound``."""
-    c = 0
-    for t in range(v.size):
-        c += v[t] < bound
-    return c
-
-
-@numba.njit(cache=True)
-def _least(v):  # type: ignore[no-untyped-def]  # numba kernel
-    """The least of v (FAR when empty)."""
-    least = FAR
-    for t in range(v.size):
-        least = min(least, v[t])
-    return least
 
 
 @numba.njit(cache=True)
@@ -265,12 +235,7 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
     kc0 = c0[by_kind]
     kr1 = r1[by_kind]
     kc1 = c1[by_kind]
-    kidx = by_kind.copy()  # the box at each place of by_kind's order; a kind's living boxes are compacted
-    klen = np.zeros(n, np.int64)  # per kind (at its start in by_kind): the places in use, and the dead among them
-    kdead = np.zeros(n, np.int64)
-    for q in range(n):
-        klen[start[q]] = stop[q] - start[q]
-    dist = np.empty(n + BLOCK, np.int64)
+    dist = np.empty(n, np.int64)
 
     def settle(i, m, is_whole):  # type: ignore[no-untyped-def]
         """Box i's list of m: whether it holds every box of its kind, its best partner and the list's last key."""
@@ -287,78 +252,40 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
 
     def list_anew(i):  # type: ignore[no-untyped-def]
         s0 = start[i]
-        s1 = s0 + klen[s0]
+        s1 = stop[i]
         a0 = r0[i]
         b0 = c0[i]
         a1 = r1[i]
         b1 = c1[i]
-        _diagonals(kr0[s0:s1], kc0[s0:s1], kr1[s0:s1], kc1[s0:s1], a0, b0, a1, b1, dist[s0:s1])
+        for q in range(s0, s1):
+            dr = max(kr1[q], a1) - min(kr0[q], a0)
+            dc = max(kc1[q], b1) - min(kc0[q], b0)
+            dist[q] = dr * dr + dc * dc
         dist[pos[i]] = FAR
-        seen = _count_below(dist[s0:s1], FAR)  # not i itself, nor dead
-        # the boxes listed before, when `near` and all living: no box farther than all of them enters the new list
-        # (those `near` have smaller keys), so the scan starts with the bar at the farthest of them + 1
-        bar = FAR  # a box enters the list below it: any living one while the list is short
-        if n_listed[i] == near:
-            top = np.int64(-1)
-            for t in range(near):
-                k = listed[i, t]
-                if not alive[k]:
-                    top = FAR
-                    break
-                dr = max(r1[k], a1) - min(r0[k], a0)
-                dc = max(c1[k], b1) - min(c0[k], b0)
-                top = max(top, dr * dr + dc * dc)
-            bar = min(bar, top + 1)
         m = 0
-        for e0 in range(s0, s1, BLOCK):
-            e1 = min(e0 + BLOCK, s1)
-            if _least(dist[e0:e1]) >= bar:
-                continue  # no box of the block enters (bar only falls within a block)
-            for q in range(e0, e1):
-                d = dist[q]
-                if d >= bar:
-                    continue  # i, dead, too far, or not below the last listed key (a larger index: a larger key on ties)
-                if m == near:
-                    p = m - 1
-                else:
-                    p = m
-                    m += 1
-                while p > 0 and listed_d[i, p - 1] > d:
-                    listed_d[i, p] = listed_d[i, p - 1]
-                    listed[i, p] = listed[i, p - 1]
-                    p -= 1
-                listed_d[i, p] = d
-                listed[i, p] = kidx[q]
-                if m == near:
-                    bar = listed_d[i, m - 1]
+        seen = 0
+        bar = FAR  # a box enters the list below it: any living one while the list is short
+        for q in range(s0, s1):
+            d = dist[q]
+            if d >= FAR:
+                continue  # i itself, or dead
+            seen += 1
+            if d >= bar:
+                continue  # not below the last listed key (its index is larger: a larger key on ties)
+            if m == near:
+                p = m - 1
+            else:
+                p = m
+                m += 1
+            while p > 0 and listed_d[i, p - 1] > d:
+                listed_d[i, p] = listed_d[i, p - 1]
+                listed[i, p] = listed[i, p - 1]
+                p -= 1
+            listed_d[i, p] = d
+            listed[i, p] = by_kind[q]
+            if m == near:
+                bar = listed_d[i, m - 1]
         settle(i, m, seen <= near)  # type: ignore[no-untyped-call]  # numba closure
-
-    def bury(b):  # type: ignore[no-untyped-def]
-        """Box b dead: its place in its kind's scan made FAR's; the kind's places compacted (their order kept)
-        once the dead are more than half of them."""
-        q = pos[b]
-        kr0[q] = -far
-        kc0[q] = -far
-        kr1[q] = far
-        kc1[q] = far
-        s0 = start[b]
-        kdead[s0] += 1
-        if 2 * kdead[s0] <= klen[s0]:
-            return
-        w = s0
-        for q in range(s0, s0 + klen[s0]):
-            k = kidx[q]
-            if not alive[k]:
-                continue
-            kidx[w] = k
-            kr0[w] = kr0[q]
-            kc0[w] = kc0[q]
-            kr1[w] = kr1[q]
-            kc1[w] = kc1[q]
-            pos[k] = w
-            w += 1
-        klen[s0] = w - s0
-        kdead[s0] = 0
 
     def refresh(i):  # type: ignore[no-untyped-def]
         b = inf
@@ -459,14 +386,9 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
         return x
 
     def update(i):  # type: ignore[no-untyped-def]
-        # box i's key changed: the nodes above it again, up to the first whose winner is the same box as before and
-        # not i (its key unchanged, so every node above it is too)
         v = (size + i) // 2
         while v >= 1:
-            w = first(tree[2 * v], tree[2 * v + 1])  # type: ignore[no-untyped-call]  # numba closure
-            if w == tree[v] and w != i:
-                break
-            tree[v] = w
+            tree[v] = first(tree[2 * v], tree[2 * v + 1])  # type: ignore[no-untyped-call]  # numba closure
             v //= 2
 
     # the boxes whose partner is p: a list through nxt / prv from head[p]
@@ -507,17 +429,10 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
     place = np.empty(n, np.int64)
     for q in range(n):
         place[by_row[q]] = q
-    qr0 = r0[by_row]  # the boxes in by_row's order, for the scans' blocks in vector lanes
-    qc0 = c0[by_row]
-    qr1 = r1[by_row]
-    qc1 = c1[by_row]
     rows_bound = True
     for q in range(n):
         if r1[q] < r0[q]:
             rows_bound = False
-
-    bd = np.empty(BLOCK, np.int64)  # a block's diagonals in list_first, and the places of those that may enter
-    bc = np.empty(BLOCK, np.int64)
 
     def list_first(i):  # type: ignore[no-untyped-def]
         s0 = start[i]
@@ -529,56 +444,28 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
         m = 0
         for step in (-1, 1):
             q = place[i] + step
-            done = False
-            while s0 <= q < s1 and not done:
-                # a block of the scan: its diagonals in vector lanes, then only the boxes that may enter (a
-                # diagonal at most the last listed one's, or any while the list is short), outwards. The rows'
-                # bound is checked at those and at the block's farthest box: it grows outwards and no box
-                # enters between, so where it stops the scan in the block it stops it at the next of them
-                if step > 0:
-                    lo_q = q
-                    hi_q = min(q + BLOCK, s1)
-                    q = hi_q
+            while s0 <= q < s1:
+                k = by_row[q]
+                q += step
+                g = r0[k] - a0 if step > 0 else a0 - r0[k]
+                if m == near and g * g > listed_d[i, m - 1]:
+                    break
+                dr = max(r1[k], a1) - min(r0[k], a0)
+                dc = max(c1[k], b1) - min(c0[k], b0)
+                d = dr * dr + dc * dc
+                if m == near:
+                    if d > listed_d[i, m - 1] or (d == listed_d[i, m - 1] and k > listed[i, m - 1]):
+                        continue
+                    p = m - 1
                 else:
-                    lo_q = max(q - BLOCK + 1, s0)
-                    hi_q = q + 1
-                    q = lo_q - 1
-                nb = hi_q - lo_q
-                _diagonals(qr0[lo_q:hi_q], qc0[lo_q:hi_q], qr1[lo_q:hi_q], qc1[lo_q:hi_q], a0, b0, a1, b1, bd)
-                bar = listed_d[i, m - 1] if m == near else FAR
-                nc = 0
-                for u in range(nb):
-                    t = u if step > 0 else nb - 1 - u
-                    bc[nc] = t
-                    nc += bd[t] <= bar
-                for w in range(nc):
-                    t = bc[w]
-                    d = bd[t]
-                    if m == near:
-                        g = qr0[lo_q + t] - a0 if step > 0 else a0 - qr0[lo_q + t]
-                        if g * g > listed_d[i, m - 1]:
-                            done = True
-                            break
-                        if d > listed_d[i, m - 1]:
-                            continue
-                        k = by_row[lo_q + t]
-                        if d == listed_d[i, m - 1] and k > listed[i, m - 1]:
-                            continue
-                        p = m - 1
-                    else:
-                        k = by_row[lo_q + t]
-                        p = m
-                        m += 1
-                    while p > 0 and (listed_d[i, p - 1] > d or (listed_d[i, p - 1] == d and listed[i, p - 1] > k)):
-                        listed_d[i, p] = listed_d[i, p - 1]
-                        listed[i, p] = listed[i, p - 1]
-                        p -= 1
-                    listed_d[i, p] = d
-                    listed[i, p] = k
-                if m == near and not done:
-                    far_q = hi_q - 1 if step > 0 else lo_q
-                    g = qr0[far_q] - a0 if step > 0 else a0 - qr0[far_q]
-                    done = g * g > listed_d[i, m - 1]
+                    p = m
+                    m += 1
+                while p > 0 and (listed_d[i, p - 1] > d or (listed_d[i, p - 1] == d and listed[i, p - 1] > k)):
+                    listed_d[i, p] = listed_d[i, p - 1]
+                    listed[i, p] = listed[i, p - 1]
+                    p -= 1
+                listed_d[i, p] = d
+                listed[i, p] = k
         settle(i, m, s1 - s0 - 1 <= near)  # type: ignore[no-untyped-call]  # numba closure
 
     todo = np.empty(n, np.int64)
@@ -608,7 +495,10 @@ def _merge_kernel(boxes, kind, max_groups, near):  # type: ignore[no-untyped-def
         kc0[pos[a]] = c0[a]
         kr1[pos[a]] = r1[a]
         kc1[pos[a]] = c1[a]
-        bury(b)  # type: ignore[no-untyped-call]  # numba closure
+        kr0[pos[b]] = -far
+        kc0[pos[b]] = -far
+        kr1[pos[b]] = far
+        kc1[pos[b]] = far
         best[b] = inf
         joined[b] = a
         update(b)  # type: ignore[no-untyped-call]  # numba closure
