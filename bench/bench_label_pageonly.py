@@ -124,11 +124,6 @@ SLIVERS: list[tuple[float, ...]] | None = None
 #: (``_free0s3a0.025``: the names the removed ``I:E:S:A`` form gave at I = 0, E = 0, so earlier rounds' rows compare by
 #: name). None: the tree's.
 FREE: list[tuple[float, float]] | None = None
-#: ``--tail Q,…`` (with ``--slivers``, one a variant, in order): a sliver pose accepted only when the 90th percentile of
-#: its explained pixels' distance over their Err is at most Q (``SLIVER_MAX_TAIL``; 0: no bound; docs/labelling.md,
-#: "Twenty-fifth round"). A variant's name then ends in ``qQ`` where Q > 0 (after the ``_free0…`` part, or ``_q``
-#: without ``--free-space``). None: the tree's.
-TAIL: list[float] | None = None
 #: ``--no-causes`` (``--diagnose`` only): each frame scored without the scene's true surfaces (no cause split)
 NO_CAUSES = False
 
@@ -621,7 +616,7 @@ def diagnose(log: Path, work: Path) -> tuple[list[dict], list[dict]]:
             rows.append(diagnose_frame(log, frame, job, ff, cpu, work=work))
             print(json.dumps(rows[-1], indent=1, default=float), flush=True)
             if SLIVERS is not None:
-                for name, vff, vcpu, pass_cpu in sliver_variants(log, frame, job, SLIVERS, free=FREE, tail=TAIL):
+                for name, vff, vcpu, pass_cpu in sliver_variants(log, frame, job, SLIVERS, free=FREE):
                     row = diagnose_frame(log, frame, job, vff, vcpu, work=work, variant=name)
                     row["cpu_slivers"] = round(pass_cpu, 3)
                     seeded.append(row)
@@ -795,15 +790,13 @@ class shared_fits:
 
 
 def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[float, ...]], *,
-                    free: Sequence[tuple[float, float]] | None = None,
-                    tail: Sequence[float] | None = None) -> Iterator[tuple[str, Any, float, float]]:
+                    free: Sequence[tuple[float, float]] | None = None) -> Iterator[tuple[str, Any, float, float]]:
     """(name, the page's fits, their CPU-s, the sliver pass's CPU-s) of ``frame`` for each variant (:data:`SLIVERS`):
     :func:`annotate.fits.fit_frame` with the pass's constants set (N, M, C, R, S; S the tree's where a variant gives
     four fields), under :class:`shared_fits` (the caller's): the fits and the pieces on top computed once for all. A
     variant's name is ``slivers`` and its fields joined by ``x`` (``slivers150x12x2x8``, ``slivers150x12x2x8x0.2``).
     With ``free`` (:data:`FREE`, one a variant) each variant's region cut and area floor, its name ending in
-    ``_free0[sS][aA]``; with ``tail`` (:data:`TAIL`, one a variant) each variant's profile bound Q, the name then
-    ending in ``qQ`` where Q > 0."""
+    ``_free0[sS][aA]``."""
     import replay.pipeline.explained as rex
     from annotate.fits import fit_frame
 
@@ -812,11 +805,8 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
     saved = (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE,
              rex.SLIVER_MAX_SEE_THROUGH, rex._with_slivers)
     saved_free = (rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE)
-    saved_tail = rex.SLIVER_MAX_TAIL
     if free is not None and len(free) != len(variants):
         raise ValueError(f"--free-space takes one S:A a --slivers variant ({len(variants)}), got {len(free)}")
-    if tail is not None and len(tail) != len(variants):
-        raise ValueError(f"--tail takes one Q a --slivers variant ({len(variants)}), got {len(tail)}")
     spent = [0.0]
     inner = rex._with_slivers
 
@@ -835,9 +825,6 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
             rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE = fj
             name = sliver_name(v) if free is None else \
                 f"{sliver_name(v)}_free0{f's{fj[0]:g}' if fj[0] else ''}{f'a{fj[1]:g}' if fj[1] else ''}"
-            rex.SLIVER_MAX_TAIL = saved_tail if tail is None else float(tail[j])
-            if tail is not None and tail[j] > 0:
-                name += f"{'' if free is not None else '_'}q{float(tail[j]):g}"
             rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE = n_px, m, c, r
             rex.SLIVER_MAX_SEE_THROUGH = float(v[4]) if len(v) > 4 else saved[4]
             spent[0] = 0.0
@@ -848,7 +835,6 @@ def sliver_variants(log: Path, frame: Any, job: Any, variants: Sequence[tuple[fl
         (rex.SLIVER_MIN_PX, rex.SLIVER_MAX_REGIONS, rex.SLIVER_COARSE, rex.SLIVER_REFINE, rex.SLIVER_MAX_SEE_THROUGH,
          rex._with_slivers) = saved
         rex.SLIVER_SPLIT_STEPS, rex.SLIVER_MIN_AREA_SHARE = saved_free
-        rex.SLIVER_MAX_TAIL = saved_tail
 
 
 def sliver_name(v: Sequence[float]) -> str:
@@ -904,23 +890,6 @@ def parse_free(text: str) -> list[tuple[float, float]]:
         if len(f) != 2 or not all(x.replace(".", "", 1).isdigit() for x in f) or not float(f[1]) <= 1.0:
             raise ValueError(f"--free-space takes S:A (S >= 0, 0 <= A <= 1), comma-separated, got {text!r}")
         out.append((float(f[0]), float(f[1])))
-    return out
-
-
-def parse_tail(text: str) -> list[float]:
-    """``--tail``' variants: ``Q``, comma-separated (Q >= 0: a sliver pose's bound on the 90th percentile of its
-    explained pixels' distance over their Err; 0: none).
-
-    Raises
-    ------
-    ValueError
-        One line naming what it got.
-    """
-    out: list[float] = []
-    for v in text.split(","):
-        if not v.replace(".", "", 1).isdigit():
-            raise ValueError(f"--tail takes Q (Q >= 0), comma-separated, got {text!r}")
-        out.append(float(v))
     return out
 
 
@@ -1363,10 +1332,6 @@ def main() -> int:
                     "than S footprints (0: no cut) and (A > 0) a region tried only when it holds A of a whole part's "
                     "projected area at its depth (default: the tree's; docs/labelling.md, 'Twenty-third round', "
                     "'Twenty-fourth round')")
-    ap.add_argument("--tail", default="", metavar="Q,…",
-                    help="with --slivers, one a variant in order: a sliver pose accepted only when the 90th percentile "
-                    "of its explained pixels' distance over their Err is at most Q (0: no bound; default: the tree's; "
-                    "docs/labelling.md, 'Twenty-fifth round')")
     ap.add_argument("--no-causes", action="store_true",
                     help="with --diagnose: score without the scene's true surfaces (no cause split; a held-out set)")
     ap.add_argument("--kinds", default="", metavar="F1,F2,…",
@@ -1386,7 +1351,7 @@ def main() -> int:
             raise SystemExit(f"error: --compare takes BEFORE.json,AFTER.json, got {args.compare!r}")
         print("\n".join(compare(*(json.loads(f.read_text()) for f in files))))
         return 0
-    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, FITS_CACHE, SLIVERS, NO_CAUSES, FREE, TAIL
+    global LARGE_PX, RING_BELOW, SEED_PX, CONFIG, FITS_CACHE, SLIVERS, NO_CAUSES, FREE
     if args.no_causes and not args.diagnose:
         raise SystemExit("error: --no-causes is a --diagnose option")
     NO_CAUSES = args.no_causes
@@ -1407,13 +1372,6 @@ def main() -> int:
             raise SystemExit(f"error: {e}") from None
         if SLIVERS is None or len(FREE) != len(SLIVERS):
             raise SystemExit(f"error: --free-space takes one S:A a --slivers variant, got {args.free_space!r}")
-    if args.tail:
-        try:
-            TAIL = parse_tail(args.tail)
-        except ValueError as e:
-            raise SystemExit(f"error: {e}") from None
-        if SLIVERS is None or len(TAIL) != len(SLIVERS):
-            raise SystemExit(f"error: --tail takes one Q a --slivers variant, got {args.tail!r}")
     if args.fits_cache is not None:
         if not args.diagnose or args.seed_px is not None or args.config is not None:
             raise SystemExit("error: --fits-cache is a --diagnose option, not with --seed-px or --config")

@@ -28,11 +28,8 @@ makes likely and a constraint the scan gives for free:
    shredded by the ray-traced scan's dropouts; "Twenty-third round"); the pixels left out are judged against the
    poses found as every pixel is (the method's join).
 4. *Acceptance.* The pose of lowest residual among those with residual ≤ :attr:`SliverParams.max_residual`
-   × the frame's median Err, a share of the region explained ≥ :attr:`SliverParams.min_share`, with
-   :attr:`SliverParams.max_tail` Q > 0 the 90th percentile of its explained pixels' distance / Err at most Q (the
-   residual's profile: a surface measured with noise of scale Err keeps it under the normal's 1.645; a pose on a
-   patch of another surface explains a band as wide as k × Err allows), and free space kept. Its explained pixels
-   become explained.
+   × the frame's median Err, a share of the region explained ≥ :attr:`SliverParams.min_share` and free
+   space kept. Its explained pixels become explained.
 
 Pure: arrays in, arrays out. It reads the scan, the unexplained mask and the frame's fitted poses; never
 a truth or a generator's pose. Inside a :func:`zcut.cancel.stop_when` scope whose check says stop it raises
@@ -99,9 +96,6 @@ class SliverParams:
         vertex from its centroid, f the mean of fx and fy, z the region's median depth): the floor means the same at
         every resolution and depth (the fits' second pass's ``seed_min_share`` rule, :mod:`zcut.fits.params`); 0:
         :attr:`min_px` alone.
-    max_tail : float
-        When > 0, a pose is accepted only when the 90th percentile of its explained pixels' distance to it over their
-        Err is at most this (the support's residual profile: docs/labelling.md, "Twenty-fifth round"); 0: no bound.
     max_points : int
         At most this many of a region's points (an even subsample) take part in the ICP.
     free_checks : int
@@ -135,7 +129,6 @@ class SliverParams:
     max_see_through: float = 0.05
     split_steps: float = 0.0
     min_area_share: float = 0.0
-    max_tail: float = 0.0
     max_points: int = 400
     free_checks: int = 8
     max_overlap: float = 0.05
@@ -148,9 +141,8 @@ class SliverParams:
                      "refine"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"SliverParams.{name} must be at least 1, got {getattr(self, name)!r}")
-        for name in ("split_steps", "max_tail"):
-            if not float(getattr(self, name)) >= 0:
-                raise ValueError(f"SliverParams.{name} must be at least 0, got {getattr(self, name)!r}")
+        if not float(self.split_steps) >= 0:
+            raise ValueError(f"SliverParams.split_steps must be at least 0, got {self.split_steps!r}")
         if not 0 <= int(self.coarse) <= int(self.iterations):
             raise ValueError(f"SliverParams.coarse must lie in [0, iterations], got {self.coarse!r}")
         for name in ("gate_mm", "k", "max_residual"):
@@ -453,8 +445,6 @@ def fit_slivers(xyz_mm: np.ndarray, valid: np.ndarray, unexplained: np.ndarray, 
             res = float(np.sqrt(np.mean(d[inl] ** 2)))
             if res > p.max_residual * med_err:
                 continue
-            if p.max_tail > 0 and float(np.percentile(d[inl] / err_px[inl], 90)) > p.max_tail:
-                continue  # the support's profile: a band as wide as k × Err, not a surface measured with noise Err
             tried.append((res, T, inl, share))
         tried.sort(key=lambda r: r[0])
         checked: list[np.ndarray] = []

@@ -118,9 +118,6 @@ SLIVER_SPLIT_STEPS = 3.0
 #: depth (:attr:`zcut.sliver_fits.SliverParams.min_area_share`; docs/labelling.md, "Twenty-fourth round": the fits'
 #: second pass's ``seed_min_share``, about 86-100 px for the zinc nuts at 1920 x 1200; 0: :data:`SLIVER_MIN_PX` alone)
 SLIVER_MIN_AREA_SHARE = 0.025
-#: ... and, when > 0, a pose is accepted only when the 90th percentile of its explained pixels' distance over their Err
-#: is at most this (:attr:`zcut.sliver_fits.SliverParams.max_tail`; docs/labelling.md, "Twenty-fifth round"; 0: no bound)
-SLIVER_MAX_TAIL = 0.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -429,7 +426,7 @@ def _with_slivers(xyz: np.ndarray, zone: Zone, near: Any, surfaces: Any, fits: t
                         params=SliverParams(min_px=SLIVER_MIN_PX, max_regions=SLIVER_MAX_REGIONS, coarse=SLIVER_COARSE,
                                             refine=SLIVER_REFINE, max_see_through=SLIVER_MAX_SEE_THROUGH,
                                             split_steps=SLIVER_SPLIT_STEPS, min_area_share=SLIVER_MIN_AREA_SHARE,
-                                            max_tail=SLIVER_MAX_TAIL, k=float(p.k),
+                                            k=float(p.k),
                                             floor_mm=float(p.err_floor_mm)))
     if not found:
         return fits, surfaces, near, 0
