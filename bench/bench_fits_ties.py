@@ -20,8 +20,9 @@ kept in ``--oldpkg``, so numba's cache of it lasts between runs). ``--settings D
 ``zcut.fits.params.TIE_MARGIN`` = D and ``TIE_CANDIDATES`` = K (``1`` alone: K = 1, no near-tied guess refined).
 Frames: bench/bench_fits.py's generators at the seed and frame index of a ``zcut synth --seed S --frames N`` log
 (bench/bench_fits_blas.py's ``_truth``; ``--cache``), its oracle zone. Each tree prepares its model under each
-convention. Under the first convention each frame is fitted ``--repeat`` times, the trees alternating (the order
-reversed on odd repeats): the CPU-s of ``fit_prepared`` (``time.process_time``, median); under the others once.
+convention. Under the first convention each frame is fitted ``--repeat`` times, under the others once, the trees alternating
+(their order reversed on odd repeat + convention index): the CPU-s of ``fit_prepared`` (``time.process_time``, the
+median of the first convention's repeats; ``cpu_all`` in the JSON).
 Scored by bench/bench_fits.py's ``score``; per sensor: found (sum), explained (mean of frames), rotation median / p90
 and translation median (medians of the frames' values), fits on no instance (sum), CPU (sum of the medians); then
 each tree's spread over the conventions (max − min) of the explained share and of the p90 rotation.
@@ -175,7 +176,7 @@ def main() -> None:
                 cpus: dict[str, list[float]] = {t[0]: [] for t in trees}
                 fits_of: dict[str, Any] = {}
                 for r in range(max(1, args.repeat) if ci == 0 else 1):
-                    for label, mod, d, k in (trees if r % 2 == 0 else trees[::-1]):
+                    for label, mod, d, k in (trees if (r + ci) % 2 == 0 else trees[::-1]):
                         P.TIE_MARGIN, P.TIE_CANDIDATES = d, k
                         model = models[conv, "main" if mod is old else "branch"]
                         convention(conv)
