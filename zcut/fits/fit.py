@@ -453,7 +453,7 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     def refined(best: tuple[float, np.ndarray]) -> tuple[np.ndarray, float]:
         # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
         # the guess's turns in between, about its own centroid, each refined the same way; then the best of them
-        # refined on up to max_points points, and last on the band's points (_fine)
+        # refined on up to max_points points (the last refinement, _fine, follows on the one kept)
         T_best = best[1]
         Rt_all = np.empty((len(turns), 3, 3))
         tt_all = np.empty((len(turns), 3))
@@ -470,19 +470,21 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
         d = _near_distances(model, pts, T, gate)
         inl_mask = d <= gate
         err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
-        if params.fine_points > 0 and np.isfinite(err):
-            T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
         return T, err
 
     cands = [refined(runs[j]) for j in [first, *_near_ties(runs, first, model)]]
-    return cands[0] if len(cands) == 1 else _tie_choice(model, pts, params, cands)
+    T, err = cands[0] if len(cands) == 1 else _tie_choice(model, pts, params, cands)
+    if params.fine_points > 0 and np.isfinite(err):
+        T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
+    return T, err
 
 
 def _near_ties(runs: list[tuple[float, np.ndarray]], first: int, model: PartModel) -> list[int]:
     """The guesses (indices into ``runs``, the coarse (score, pose) of each guess run) refined besides the best one
     ``first``: those whose score lies within :data:`zcut.fits.params.TIE_MARGIN` of the best's, highest first (equal
     scores: in order), each a pose apart from the best's and from those taken before (:func:`_same_pose`), at most
-    :data:`zcut.fits.params.TIE_CANDIDATES` − 1 of them."""
+    :data:`zcut.fits.params.TIE_CANDIDATES` − 1 of them. Each is refined as the best is (its turns, the ICP on
+    ``max_points``), :func:`_tie_choice` keeps one, and the last refinement (:func:`_fine`) refines that one."""
     from . import params as P
 
     limit = runs[first][0] - P.TIE_MARGIN
