@@ -16,8 +16,10 @@ sign set by a rule, for every 3 × 3 input:
 - ``mix``: as ``pos``, the middle vector (second of ascending eigenvalues) then negated.
 
 ``--old``: a ``git archive`` of the older tree; its ``zcut/fits`` is imported as bench/bench_fits_blas.py does (a copy
-kept in ``--oldpkg``, so numba's cache of it lasts between runs). ``--settings D:K,...``: this tree's fits with
-``zcut.fits.params.TIE_MARGIN`` = D and ``TIE_CANDIDATES`` = K (``1`` alone: K = 1, no near-tied guess refined).
+kept in ``--oldpkg``, so numba's cache of it lasts between runs). This tree's fits as they are (``--settings this``,
+the default), or, in a checkout of the reverted lever (h/blas3 56d1a8d: every candidate's last refinement; fa87438:
+the kept one's only, docs/fits.md), ``--settings D:K,...``: with ``zcut.fits.params.TIE_MARGIN`` = D and
+``TIE_CANDIDATES`` = K.
 Frames: bench/bench_fits.py's generators at the seed and frame index of a ``zcut synth --seed S --frames N`` log
 (bench/bench_fits_blas.py's ``_truth``; ``--cache``), its oracle zone. Each tree prepares its model under each
 convention. Under the first convention each frame is fitted ``--repeat`` times, under the others once, the trees alternating
@@ -127,7 +129,8 @@ def main() -> None:
     ap.add_argument("--kind", default="zinc_nuts")
     ap.add_argument("--size", default="1920x1200")
     ap.add_argument("--conventions", default="lapack,pos,neg,first")
-    ap.add_argument("--settings", default="0.01:2", help="this tree's TIE_MARGIN:TIE_CANDIDATES, comma separated")
+    ap.add_argument("--settings", default="this",
+                    help="this: this tree as it is; else TIE_MARGIN:TIE_CANDIDATES, comma separated (a tree with them)")
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--cache", default=None, metavar="DIR", help="keep the synthesized frames in DIR")
     ap.add_argument("--json", default=None)
@@ -144,10 +147,12 @@ def main() -> None:
 
     args.oldpkg.mkdir(parents=True, exist_ok=True)
     old = _load_old(args.old, args.oldpkg)
-    settings: list[tuple[str, float, int]] = []
+    settings: list[tuple[str, float | None, int | None]] = []
     for item in args.settings.split(","):
         d, _, k = item.partition(":")
-        settings.append((item, float(d) if k else P.TIE_MARGIN, int(k) if k else 1))
+        if item != "this" and not (k and hasattr(P, "TIE_MARGIN")):
+            raise SystemExit(f"--settings {item}: give D:K, in a tree whose zcut/fits/params.py has TIE_MARGIN")
+        settings.append((item, float(d), int(k)) if item != "this" else (item, None, None))
     convs = args.conventions.split(",")
     w, h = (int(v) for v in args.size.split("x"))
     rows: list[dict[str, Any]] = []
@@ -171,13 +176,14 @@ def main() -> None:
             valid = np.isfinite(truth.xyz_mm).all(axis=2)
             zone = valid & ((truth.label == BF.LABEL_PART) | truth.outliers | truth.off)
             for ci, conv in enumerate(convs):
-                trees: list[tuple[str, ModuleType, float, int]] = [("main", old, 0.0, 1)]
+                trees: list[tuple[str, ModuleType, float | None, int | None]] = [("main", old, None, None)]
                 trees += [(label, new, d, k) for label, d, k in settings]
                 cpus: dict[str, list[float]] = {t[0]: [] for t in trees}
                 fits_of: dict[str, Any] = {}
                 for r in range(max(1, args.repeat) if ci == 0 else 1):
                     for label, mod, d, k in (trees if (r + ci) % 2 == 0 else trees[::-1]):
-                        P.TIE_MARGIN, P.TIE_CANDIDATES = d, k
+                        if d is not None:
+                            vars(P).update(TIE_MARGIN=d, TIE_CANDIDATES=k)
                         model = models[conv, "main" if mod is old else "branch"]
                         convention(conv)
                         c0 = time.process_time()

@@ -47,7 +47,6 @@ from zcut.fit_vetting import pose_overlaps
 
 from .icp import EDGE_WEAK, guess_translations, icp, initial_rotations, pose_matrix, shifted_guesses
 from .kernels import (
-    coarse_scores,
     coarse_search,
     edge_distances,
     lower_bounds,
@@ -407,32 +406,14 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
                                            ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri, ix.seg_grid, ix.p0,
                                            ix.p1, EDGE_WEAK, STOP_INL if stop else 2.0, STOP_EDGE)
             return (float(score), pose_matrix(R, t)) if i >= 0 else None
-        found = search_all(Rs, ts, stop)
-        return None if found is None else found[1][found[0]]
-
-    def search_all(Rs: np.ndarray, ts: np.ndarray, stop: bool) -> tuple[int, list[tuple[float, np.ndarray]]] | None:
-        """:func:`search` keeping every guess run: (the index of the best, (score, pose) of each guess run before the
-        stop, in order); the same poses and scores (:func:`zcut.fits.kernels.coarse_scores`)."""
-        if not len(Rs):
-            return None
-        ix = model.index
-        if ix is not None:
-            i, done, scores, Rk, tk = coarse_scores(
-                coarse, coarse_e, Rs, ts, int(params.coarse_iterations), float(params.gate_mm), float(params.k),
-                float(params.err_floor_mm), float(edge_gate), float(model.extent_mm), float(score_tol), 1.5 * px_mm,
-                ix.origin, ix.h, ix.tri_grid, ix.a, ix.b, ix.c, ix.n, ix.tri, ix.seg_grid, ix.p0, ix.p1, EDGE_WEAK,
-                STOP_INL if stop else 2.0, STOP_EDGE)
-            return int(i), [(float(scores[j]), pose_matrix(Rk[j], tk[j])) for j in range(int(done))]
-        runs: list[tuple[float, np.ndarray]] = []
-        best = -1
-        for j, (R0, t0) in enumerate(zip(Rs, ts)):
+        found: tuple[float, np.ndarray] | None = None
+        for R0, t0 in zip(Rs, ts):
             score, inl, e_inl, T = coarse_fit(pose_matrix(R0, t0))
-            runs.append((score, T))
-            if best < 0 or score > runs[best][0]:
-                best = j
+            if found is None or score > found[0]:
+                found = (score, T)
             if stop and inl >= STOP_INL and e_inl >= STOP_EDGE:
                 break
-        return best, runs
+        return found
 
     # the points' principal axes, once: the guesses' rotations and the turns' axis (the same arithmetic as
     # initial_rotations' own, so the same bits)
@@ -445,94 +426,30 @@ def _fit_general(frame: _Frame, flat: np.ndarray, model: PartModel, params: FitP
     if shifts:
         Rsh, tsh = shifted_guesses(pts, Rs, model, shifts)
         Rs, ts = np.concatenate([Rs, Rsh]), np.concatenate([ts, tsh])
-    found = search_all(Rs, ts, stop=True)
-    assert found is not None
-    first, runs = found
+    best = search(Rs, ts, stop=True)
+    assert best is not None
+    # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
+    # the best one's turns in between, about its own centroid, each refined the same way
+    T_best = best[1]
     turns = () if shifts else TURNS_DEG
-
-    def refined(best: tuple[float, np.ndarray]) -> tuple[np.ndarray, float]:
-        # the guesses turn 45° apart about the region's normal, the turn its surface leaves nearly free:
-        # the guess's turns in between, about its own centroid, each refined the same way; then the best of them
-        # refined on up to max_points points (the last refinement, _fine, follows on the one kept)
-        T_best = best[1]
-        Rt_all = np.empty((len(turns), 3, 3))
-        tt_all = np.empty((len(turns), 3))
-        for m, deg in enumerate(turns):
-            Rt = _turn(ax[:, 0], np.radians(deg))
-            Rt_all[m] = Rt @ T_best[:3, :3]
-            tt_all[m] = Rt @ (T_best[:3, 3] - c) + c
-        better = search(Rt_all, tt_all, stop=False)
-        if better is not None and better[0] > best[0]:
-            best = better
-        T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
-                        **opts)
-        gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
-        d = _near_distances(model, pts, T, gate)
-        inl_mask = d <= gate
-        err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
-        return T, err
-
-    cands = [refined(runs[j]) for j in [first, *_near_ties(runs, first, model)]]
-    T, err = cands[0] if len(cands) == 1 else _tie_choice(model, pts, params, cands)
+    Rt_all = np.empty((len(turns), 3, 3))
+    tt_all = np.empty((len(turns), 3))
+    for m, deg in enumerate(turns):
+        Rt = _turn(ax[:, 0], np.radians(deg))
+        Rt_all[m] = Rt @ T_best[:3, :3]
+        tt_all[m] = Rt @ (T_best[:3, 3] - c) + c
+    better = search(Rt_all, tt_all, stop=False)
+    if better is not None and better[0] > best[0]:
+        best = better
+    T, rms, _ = icp(pts, model, best[1], iterations=params.icp_iterations, edge_points=epts,
+                    **opts)
+    gate = params.k * max(rms if np.isfinite(rms) else params.gate_mm, params.err_floor_mm)
+    d = _near_distances(model, pts, T, gate)
+    inl_mask = d <= gate
+    err = float(np.sqrt(np.mean(d[inl_mask] ** 2))) if inl_mask.any() else np.inf
     if params.fine_points > 0 and np.isfinite(err):
         T, err = _fine(frame, flat, pts, epts, model, params, opts, T, err)
     return T, err
-
-
-def _near_ties(runs: list[tuple[float, np.ndarray]], first: int, model: PartModel) -> list[int]:
-    """The guesses (indices into ``runs``, the coarse (score, pose) of each guess run) refined besides the best one
-    ``first``: those whose score lies within :data:`zcut.fits.params.TIE_MARGIN` of the best's, highest first (equal
-    scores: in order), each a pose apart from the best's and from those taken before (:func:`_same_pose`), at most
-    :data:`zcut.fits.params.TIE_CANDIDATES` − 1 of them. Each is refined as the best is (its turns, the ICP on
-    ``max_points``), :func:`_tie_choice` keeps one, and the last refinement (:func:`_fine`) refines that one."""
-    from . import params as P
-
-    limit = runs[first][0] - P.TIE_MARGIN
-    near = [j for j, (score, _) in enumerate(runs) if j != first and score >= limit]
-    near.sort(key=lambda j: -runs[j][0])  # stable: equal scores in order
-    taken: list[int] = []
-    for j in near:
-        if len(taken) + 1 >= P.TIE_CANDIDATES:
-            break
-        if not any(_same_pose(model, runs[j][1], runs[i][1]) for i in [first, *taken]):
-            taken.append(j)
-    return taken
-
-
-def _same_pose(model: PartModel, Ta: np.ndarray, Tb: np.ndarray) -> bool:
-    """Whether two poses are one up to a symmetry of the model: their centroids within
-    :data:`zcut.fits.params.TIE_DISTINCT_MM` and Raᵀ Rb within :data:`zcut.fits.params.TIE_DISTINCT_DEG` of one of
-    the model's symmetry rotations S (Rb = Ra S: the same solid)."""
-    from . import params as P
-
-    ca = Ta[:3, :3] @ model.centroid + Ta[:3, 3]
-    cb = Tb[:3, :3] @ model.centroid + Tb[:3, 3]
-    if float(np.linalg.norm(ca - cb)) > P.TIE_DISTINCT_MM:
-        return False
-    M = Ta[:3, :3].T @ Tb[:3, :3]
-    cos = (np.einsum("kij,ij->k", model.symmetries, M) - 1.0) / 2.0  # cos of the angle of Sᵀ M, each S
-    return bool(float(cos.max()) >= np.cos(np.radians(P.TIE_DISTINCT_DEG)))
-
-
-def _tie_choice(model: PartModel, pts: np.ndarray, params: FitParams,
-                cands: list[tuple[np.ndarray, float]]) -> tuple[np.ndarray, float]:
-    """The fit kept of a region's refined near-tied candidates (pose, Err): an acceptable Err (at most
-    ``max_err_mm``) first, then the most of the region's points ``pts`` within one tolerance, k × max(the smallest
-    Err of them, floor) — the claims' rule between two fits of one part (:meth:`_Claims.better`) —, then the smaller
-    Err, then the first."""
-    errs = [e for _, e in cands if np.isfinite(e)]
-    if not errs:
-        return cands[0]
-    tol = params.k * max(min(errs), params.err_floor_mm)
-    keys = []
-    for T, e in cands:
-        count = int((_near_distances(model, pts, T, tol) <= tol).sum()) if np.isfinite(e) else -1
-        keys.append((bool(np.isfinite(e) and e <= params.max_err_mm), count, -e))
-    best = 0
-    for j in range(1, len(cands)):
-        if keys[j] > keys[best]:
-            best = j
-    return cands[best]
 
 
 def _fine(frame: _Frame, flat: np.ndarray, pts: np.ndarray, epts: np.ndarray, model: PartModel, params: FitParams,

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-__all__ = ["ModelIndex", "build_index", "coarse_scores", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "occluding_boundary",
+__all__ = ["ModelIndex", "build_index", "coarse_search", "edge_distances", "farthest_points", "guess_score", "icp_kernel", "lower_bounds", "occluding_boundary",
            "surface_distances", "window_band", "window_pixels", "window_rays"]
 
 
@@ -776,42 +776,6 @@ def coarse_search(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, t
         if inl >= stop_inl and e_inl >= stop_edge:
             break
     return best, best_R, best_t, best_score
-
-
-@numba.njit(cache=True, nogil=True)
-def coarse_scores(points: np.ndarray, edge_points: np.ndarray, Rs: np.ndarray, ts: np.ndarray, iterations: int,
-                  gate_mm: float, k: float, floor_mm: float, edge_gate_mm: float, extent: float, score_tol: float,
-                  edge_tol: float, origin: np.ndarray, h: float, grid: np.ndarray, a: np.ndarray, b: np.ndarray,
-                  c: np.ndarray, n: np.ndarray, tri: np.ndarray, seg_grid: np.ndarray, p0: np.ndarray, p1: np.ndarray,
-                  weak: float, stop_inl: float, stop_edge: float
-                  ) -> tuple[int, int, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`coarse_search` keeping every guess's result: (index of the best — the first of the best scores —,
-    the number of guesses run before the stop, every run guess's score, R and t (the first that many rows of
-    ``(len(Rs),)``, ``(len(Rs), 3, 3)``, ``(len(Rs), 3)``; the rest unset)); index -1 without guesses. The
-    same steps and arithmetic as :func:`coarse_search`: its winner's pose and score to the bit."""
-    m = len(Rs)
-    scores = np.empty(m)
-    R_out = np.empty((m, 3, 3))
-    t_out = np.empty((m, 3))
-    best = -1
-    best_score = -np.inf
-    done = 0
-    for i in range(m):
-        R, t, _, _ = icp_kernel(points, Rs[i], ts[i], iterations, gate_mm, k, floor_mm, edge_points, edge_gate_mm,
-                                extent, origin, h, grid, a, b, c, n, tri, seg_grid, p0, p1, weak)
-        inl, near, e_inl = guess_score(points, edge_points, R, t, score_tol, edge_tol, origin, h, grid, a, b, c, n,
-                                       tri, seg_grid, p0, p1)
-        score = inl - 0.01 * near + (0.5 * e_inl if len(edge_points) else 0.0)
-        scores[i] = score
-        R_out[i] = R
-        t_out[i] = t
-        done = i + 1
-        if best < 0 or score > best_score:
-            best = i
-            best_score = score
-        if inl >= stop_inl and e_inl >= stop_edge:
-            break
-    return best, done, scores, R_out, t_out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 from zcut.params import _boolean, _number  # the house's checks (their messages name FitParams.field)
 
-__all__ = ["FitParams", "TIE_CANDIDATES", "TIE_DISTINCT_DEG", "TIE_DISTINCT_MM", "TIE_MARGIN"]
+__all__ = ["FitParams"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -141,28 +141,3 @@ class FitParams:
         _number(self, "fine_points", ge=0, integer=True)
         _boolean(self, "fine_window")
         _number(self, "fine_robust", ge=0)
-
-
-#: The near-tied guesses of a region's search (:func:`zcut.fits.fit._fit_general`, docs/fits.md "The fits' choice
-#: among near-tied guesses"): besides the best coarse guess, every guess whose coarse score lies within this of the
-#: best's (a score is inl − 0.01 near + 0.5 e_inl, the shares of 150 and 75 points: one point is 0.0067 and 0.0067)
-#: is refined as the best is (its turns, the ICP, the last refinement) and the refined fits are compared by the
-#: pixels each explains (:func:`zcut.fits.fit._tie_choice`): which of near-tied guesses is scored first — an arbitrary
-#: sign of a principal axis decides it — no longer picks the fit.
-#: How chosen (the rule written before the tuning run, tuning seed 7751 only): of the grid (TIE_MARGIN,
-#: TIE_CANDIDATES) in {(0.01, 2), (0.02, 3), (0.04, 3)}, the settings meeting every bar of the lead's rule on seed
-#: 7751 against main in one run (bench/bench_fits_ties.py, both sensors, four sign conventions); of those the
-#: smallest sum over the two sensors of its spread over the conventions divided by main's, explained share and p90
-#: rotation (equal sums: the lower CPU). Applied as far as time allowed (docs/fits.md): (0.02, 3) measured on
-#: hand-made frame 0 only; (0.01, 2) and (0.04, 3) on the three hand-made frames (lapack, pos, first, mix): (0.01, 2)
-#: spread 0.0038 / 2.63° against main's 0.0041 / 2.65°, (0.04, 3) 0.0011 / 0.62° — the only one near the bar of half;
-#: (0.04, 3) kept, its alternates then refined without the last refinement (_fine on the one kept: its CPU 1.245 × main's).
-TIE_MARGIN = 0.04
-#: ... at most this many fits so refined a region (the best guess's included).
-TIE_CANDIDATES = 3
-#: Two coarse poses are one (refined once) when, up to a symmetry of the model, their rotations lie within this
-#: many degrees and their centroids within :data:`TIE_DISTINCT_MM` (fixed, not tuned: the coarse ICP's poses of one
-#: start lie within a degree; the guesses' templates 45° apart and more).
-TIE_DISTINCT_DEG = 5.0
-#: See :data:`TIE_DISTINCT_DEG` (mm).
-TIE_DISTINCT_MM = 1.0
