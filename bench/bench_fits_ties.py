@@ -18,7 +18,7 @@ sign set by a rule, for every 3 × 3 input:
 ``--old``: a ``git archive`` of the older tree; its ``zcut/fits`` is imported as bench/bench_fits_blas.py does (a copy
 kept in ``--oldpkg``, so numba's cache of it lasts between runs). This tree's fits as they are (``--settings this``,
 the default), or, in a checkout of the reverted lever (h/blas3 56d1a8d: every candidate's last refinement; fa87438:
-the kept one's only, docs/fits.md), ``--settings D:K,...``: with ``zcut.fits.params.TIE_MARGIN`` = D and
+the kept one's only, docs/fits.md), ``--settings D:K,...``: with the params module's ``TIE_MARGIN`` = D and
 ``TIE_CANDIDATES`` = K.
 Frames: bench/bench_fits.py's generators at the seed and frame index of a ``zcut synth --seed S --frames N`` log
 (bench/bench_fits_blas.py's ``_truth``; ``--cache``), its oracle zone. Each tree prepares its model under each
