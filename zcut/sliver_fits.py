@@ -49,6 +49,7 @@ from zcut.cancel import stop_point
 from zcut.errors import InputShapeError
 from zcut.fits import PartModel
 from zcut.fits.icp import guess_translations, icp, pose_matrix, shifted_guesses
+from zcut.fits.model import projected_area_px
 
 __all__ = ["SliverFit", "SliverParams", "depth_steps", "fit_slivers", "projected_area_px", "see_through_share"]
 
@@ -253,14 +254,6 @@ def depth_steps(xyz_mm: np.ndarray, valid: np.ndarray, fx: float, n: float) -> n
         for nb in (z[1:-1, 2:], z[1:-1, :-2], z[2:, 1:-1], z[:-2, 1:-1]):
             step |= np.abs(nb - mid) > tol  # NaN (an invalid pixel or neighbour) compares False
     return step
-
-
-def projected_area_px(model: PartModel, z_mm: np.ndarray | float, f_px: float) -> np.ndarray:
-    """π (extent · f / z)²: the pixels a whole part at depth ``z_mm`` covers at most (``extent`` the model's largest
-    distance of a vertex from its centroid, ``f_px`` the focal length in pixels; the fits' second pass's area,
-    :mod:`zcut.fits.params` ``seed_min_share``)."""
-    r = float(model.extent_mm) * float(f_px) / np.maximum(np.asarray(z_mm, np.float64), 1e-6)
-    return np.asarray(np.pi * r * r)
 
 
 def _distinct(rotations: list[np.ndarray], model: PartModel, tol: float = 0.05) -> list[np.ndarray]:

@@ -56,7 +56,7 @@ from .kernels import (
     window_pixels,
     window_rays,
 )
-from .model import PartModel, prepare_model
+from .model import PartModel, prepare_model, projected_area_px
 from .params import FitParams
 from .segment import segment
 from .sphere import algebraic_sphere, refine_sphere, vote_centres
@@ -701,8 +701,7 @@ def _projected_area(frame: _Frame, flat: np.ndarray, model: PartModel) -> float:
     """π (extent · f / z)² pixels, z the median depth of the pixels ``flat``: the area a whole
     instance there covers at most."""
     z = float(np.median(frame.xyz.reshape(-1, 3)[_subsample(flat, 500), 2]))
-    r = model.extent_mm * 0.5 * (frame.K[0] + frame.K[1]) / max(z, 1e-6)
-    return float(np.pi * r * r)
+    return float(projected_area_px(model, z, 0.5 * (frame.K[0] + frame.K[1])))
 
 
 def _fit_region(frame: _Frame, region: np.ndarray, model: PartModel, params: FitParams,

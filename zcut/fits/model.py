@@ -23,7 +23,7 @@ from zcut.ray_hits import mesh_hit_t
 
 from .kernels import ModelIndex, build_index
 
-__all__ = ["PartModel", "cube_root", "prepare_model"]
+__all__ = ["PartModel", "cube_root", "prepare_model", "projected_area_px"]
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -157,6 +157,15 @@ class PartModel:
         """(distance, index) of the nearest surface sample of each point (model frame)."""
         d, i = self._tree.query(points_model, k=1)
         return np.asarray(d, np.float64), np.asarray(i, np.int64)
+
+
+def projected_area_px(model: PartModel, z_mm: np.ndarray | float, f_px: float) -> np.ndarray:
+    """π (extent · f / z)²: the pixels a whole instance of ``model`` at depth ``z_mm`` covers at most (``extent`` the
+    model's largest distance of a vertex from its centroid, ``f_px`` the focal length in pixels). The fits' second pass
+    reads it (:mod:`zcut.fits.params` ``seed_min_share``), and so does the sliver pass's size floor
+    (:mod:`zcut.sliver_fits`, ``SliverParams.min_area_share``): one definition."""
+    r = float(model.extent_mm) * float(f_px) / np.maximum(np.asarray(z_mm, np.float64), 1e-6)
+    return np.asarray(np.pi * r * r)
 
 
 def _box_hits(origins: np.ndarray, directions: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
