@@ -571,14 +571,13 @@ def _band_consts(C, floor, b, bc, r, w, H, use_cam):  # type: ignore[no-untyped-
 
 @nb.njit(cache=True)
 def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar, merge, init,  # type: ignore[no-untyped-def]  # numba kernel
-               best, wmax, grow):
+               best, wmax):
     # stage 1 (w = 1: columns 2 .. W - 3) or stage 2 (w = 2: columns 3 .. W - 4, only where
     # stage 1 left NaN if merge, else all) of row r, over its valid columns first .. last: chunks
     # of at most CH columns, each starting at a valid pixel and ending before a run of more than
     # _GAP invalid ones (the columns between chunks are invalid: their dbar is left as it is).
     # Stage 2 hands the pixels it leaves straight to the growing window, from its 5 x 5 window's
-    # slots (written: d̄, or minus the m-th squared distance found): stage 3 skips them. ``grow``:
-    # scratch for CH column indices (the pixels of a chunk that grow).
+    # slots (written: d̄, or minus the m-th squared distance found): stage 3 skips them.
     H, W = x.shape
     c = max(w + 1, first)
     end = min(W - w - 2, last)
@@ -611,19 +610,15 @@ def _row_stage(buf, w, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C
                 dbar[r, c0 + i] = buf[oo + i]
         else:
             _chunk_5x5(buf, n, m, divisor, use_cam, init)
-            k = 0
-            for i in range(n):  # a select, and the pixels that grow gathered without a branch (valid at random)
+            for i in range(n):  # branches only where a pixel grows (valid pixels at random in sparse clouds)
                 cc = c0 + i
                 old = dbar[r, cc]
                 keep = merge & ~np.isnan(old)
                 v = buf[oo + i]
+                if valid[r, cc] & np.isnan(v) & ~keep:
+                    v = _grow_seeded(r, cc, best, _load(buf, _K2, i, init), np.int64(buf[_K2 + 8 * CH + i]), x, y, z,
+                                     m, divisor, wmax, use_cam, R, C, Q, floor)
                 dbar[r, cc] = old if keep else v
-                grow[k] = i
-                k += valid[r, cc] & np.isnan(v) & ~keep
-            for j in range(k):  # then each of them (growing reads only the planes: the same d̄ in any order)
-                i = grow[j]
-                dbar[r, c0 + i] = _grow_seeded(r, c0 + i, best, _load(buf, _K2, i, init), np.int64(buf[_K2 + 8 * CH + i]),
-                                               x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor)
 
 
 # --------------------------------------------------------------------------------------------
@@ -730,23 +725,19 @@ def _grow(r, c, best, x, y, z, m, divisor, w0, wmax, use_cam, R, C, Q, floor):  
     return _grow_from(r, c, best, count, w0, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _grow_seeded(r, c, best, sl, count, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_grow` of an interior pixel (2 <= r < H - 2, 2 <= c < W - 2) from its 5 x 5 window
     as the row stages left it: ``sl`` its smallest neighbour distances (ascending slots, at least
     m - 1 of them), ``count`` its valid pixels, the pixel itself included (the same candidates,
-    hence the same state, as :func:`_grow` scanning rings 1 and 2: none is measured twice).
-
-    Inlined into its callers, with :func:`_grow_from`: a call that passes the planes and the tables
-    cost ~150 ns a pixel on a frame of tall parts on end (one pixel in nine grows there), more than
-    most of the growing does (docs/performance.md, round of 2026-12-08a)."""
+    hence the same state, as :func:`_grow` scanning rings 1 and 2: none is measured twice)."""
     best[0] = 0.0
     for i in range(1, m):
         best[i] = sl[i - 1]
     return _grow_from(r, c, best, count, 2, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor)
 
 
-@nb.njit(cache=True, inline="always")
+@nb.njit(cache=True)
 def _grow_from(r, c, best, count, w, x, y, z, m, divisor, wmax, use_cam, R, C, Q, floor):  # type: ignore[no-untyped-def]  # numba kernel
     """:func:`_grow` once the window of half-width w is scanned into ``best`` (its m smallest
     squared distances, the pixel's own 0 first) and ``count`` (its valid pixels).
@@ -856,7 +847,6 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
     buf = np.empty(SCRATCH)
     cols = np.empty(W, np.int64)
     best = np.empty(m)
-    grow = np.empty(CH, np.int64)
     sparse = False  # the last row with a 3 x 3 stage left many pixels to the 5 x 5 one
     for r in range(r0, r1):
         first = span[r, 0]
@@ -870,11 +860,11 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
             five = 2 <= r < H - 2 and wmax >= 2 and W >= 7
             if five and sparse and r % 8:  # straight to 5 x 5 (the same d̄ where both prove it)
                 _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
-                           False, init, best, wmax, grow)
+                           False, init, best, wmax)
                 lo, hi = 3, W - 4
             else:
                 _row_stage(buf, 1, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b, dbar,
-                           True, init, best, wmax, grow)
+                           True, init, best, wmax)
                 lo, hi = 2, W - 3
                 if five:  # what it left, with a 5 x 5 window
                     n = 0
@@ -884,7 +874,7 @@ def window_rows(r0, r1, x, y, z, valid, span, m, divisor, w0, wmax, use_cam, R, 
                     sparse = 8 * n > last - first + 1
                     if sparse:  # many: the whole row, vectorized
                         _row_stage(buf, 2, r, x, y, z, valid, first, last, m, divisor, use_cam, R, C, Q, floor, b,
-                                   dbar, True, init, best, wmax, grow)
+                                   dbar, True, init, best, wmax)
                     elif n:
                         _list_5x5(r, cols, n, x, y, z, m, divisor, use_cam, R, C, Q, floor, b, dbar, init, best,
                                   wmax)
