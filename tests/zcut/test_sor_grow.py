@@ -1,6 +1,6 @@
 """The whole-row 5 × 5 stage of the window phase and the growing window it hands its pixels to
-(``zcut.sor_window._row_stage`` with w = 2, ``_grow_seeded`` inlined; round of 2026-12-08a, h/sor20: the pixels
-that grow are gathered first, then grown) against the brute-force reference: tall parts on end (most pixels fail
+(``zcut.sor_window._row_stage`` with w = 2; written in the round of 2026-12-08a, h/sor20, for a lever on that
+stage, reverted; these cases stand on their own) against the brute-force reference: tall parts on end (most pixels fail
 the 3 × 3 proof, one in ten grows past the 5 × 5 window), with half of the pixels invalid at random, large invalid
 regions, single-pixel runs, empty rows, and a strided float32 crop."""
 
@@ -76,7 +76,7 @@ def _window_inputs(xyz: np.ndarray, k: int, convention: str, monkeypatch: pytest
 
 @pytest.mark.parametrize("kind", KINDS)
 @pytest.mark.parametrize("convention", ["pcl", "open3d"])
-@pytest.mark.parametrize("k", [4, 8])
+@pytest.mark.parametrize("k", [4])
 def test_the_whole_row_five_by_five_stage_and_its_growth_are_exact(kind: str, convention: str, k: int,
                                                                    monkeypatch: pytest.MonkeyPatch) -> None:
     # every row through the 5 x 5 stage (merge or not), with the window growing to 16 and held at 2: a pixel it
@@ -91,7 +91,6 @@ def test_the_whole_row_five_by_five_stage_and_its_growth_are_exact(kind: str, co
     mth = _mth_d2(xyz, m)
     buf = np.empty(sor_window.SCRATCH)
     best = np.empty(m)
-    grow = np.empty(sor_window.CH, np.int64)
     proven = {}
     for wm in (2, wmax):
         for merge in (False, True):
@@ -100,7 +99,7 @@ def test_the_whole_row_five_by_five_stage_and_its_growth_are_exact(kind: str, co
                 d[::3, ::2] = 1234.5
             for r in range(2, H - 2):
                 sor_window._row_stage(buf, 2, r, x, y, z, valid, span[r, 0], span[r, 1], m, divisor, use_cam, R, C,
-                                      Q, floor, (r + 16) // 32, d, merge, init, best, wm, grow)
+                                      Q, floor, (r + 16) // 32, d, merge, init, best, wm)
             inner = np.zeros((H, W), bool)
             inner[2:H - 2, 3:W - 3] = True
             for r in range(H):  # the columns the stage runs on: first valid .. last valid, within 3 .. W - 4
