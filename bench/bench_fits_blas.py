@@ -34,10 +34,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_fits as BF  # noqa: E402
 
 
-def _load_old(tree: Path, tmp: Path) -> ModuleType:
-    """The older tree's ``zcut/fits`` as the package ``zcut_fits_old``."""
-    dst = tmp / "zcut_fits_old"
-    shutil.copytree(tree / "zcut" / "fits", dst, ignore=shutil.ignore_patterns("__pycache__"))
+def _load_old(tree: Path, where: Path) -> ModuleType:
+    """The older tree's ``zcut/fits`` as the package ``zcut_fits_old``, copied to ``where`` when not there yet (a kept
+    copy keeps numba's cache of its kernels; bench/bench_fits_ties.py, bench/bench_fits_signs.py call it too)."""
+    dst = where / "zcut_fits_old"
+    if not dst.is_dir():
+        shutil.copytree(tree / "zcut" / "fits", dst, ignore=shutil.ignore_patterns("__pycache__"))
     spec = importlib.util.spec_from_file_location("zcut_fits_old", dst / "__init__.py",
                                                   submodule_search_locations=[str(dst)])
     assert spec is not None and spec.loader is not None

@@ -33,10 +33,8 @@ each tree's spread over the conventions (max − min) of the explained share and
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import json
 import os
-import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -93,20 +91,6 @@ def convention(rule: str) -> None:
     np.linalg.eigh = eigh
 
 
-def _load_old(tree: Path, where: Path) -> ModuleType:
-    """The older tree's ``zcut/fits`` as the package ``zcut_fits_old``, copied to ``where`` when not there yet."""
-    dst = where / "zcut_fits_old"
-    if not dst.is_dir():
-        shutil.copytree(tree / "zcut" / "fits", dst, ignore=shutil.ignore_patterns("__pycache__"))
-    spec = importlib.util.spec_from_file_location("zcut_fits_old", dst / "__init__.py",
-                                                  submodule_search_locations=[str(dst)])
-    assert spec is not None and spec.loader is not None
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["zcut_fits_old"] = mod
-    spec.loader.exec_module(mod)
-    return mod
-
-
 def summary(rows: list[dict[str, Any]], sensor: str, tree: str, conv: str) -> dict[str, float]:
     """The per-sensor figures of one tree under one convention (the module docstring)."""
     rs = [r for r in rows if r["sensor"] == sensor and r["tree"] == tree and r["conv"] == conv]
@@ -146,7 +130,7 @@ def main() -> None:
     from replay.synth.log import part_model_attachment
 
     args.oldpkg.mkdir(parents=True, exist_ok=True)
-    old = _load_old(args.old, args.oldpkg)
+    old = BB._load_old(args.old, args.oldpkg)
     settings: list[tuple[str, float | None, int | None]] = []
     for item in args.settings.split(","):
         d, _, k = item.partition(":")
