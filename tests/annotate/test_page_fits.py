@@ -52,21 +52,6 @@ def _server(log, db, **kw):
                                        **kw))
 
 
-@pytest.fixture(scope="module")
-def fits_memo() -> dict:
-    return {}
-
-
-@pytest.fixture
-def fits_once(fits_memo, monkeypatch):
-    """Frame 0's background fits made once for the servers of the tests that ask for it (tests/annotate_helpers.py,
-    ``fits_once``: keyed by the content of every input); not for the test of a page used while its frames are
-    fitted, whose fits must take their time."""
-    from annotate_helpers import fits_once as memoize
-
-    memoize(monkeypatch, fits_memo)
-
-
 def _fits(srv, i, client=None):
     """The fits bundle of frame ``i``, however long a server busy fitting takes to answer (httpx's default 5 s
     ran out once at load 16, the server process fitting frame 0 on two loaded cores)."""

@@ -30,7 +30,10 @@ from annotate.store import LabelStore
 from replay.options import PipelineOptions
 from zcut import explained as ex
 
-pytestmark = [pytest.mark.browser, pytest.mark.slow]
+# frame 0's background fits made once for the module's four servers: what the tests check is the seeds' way through
+# the store, with the deterministic fits a restarted server finds again (module docstring)
+# (tests/annotate/conftest.py, ``fits_once``)
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.usefixtures("fits_once")]
 
 SIZE = "480x300"
 SEED = 9191  # used by no other test
@@ -44,21 +47,6 @@ def spheres_log(tmp_path_factory):
     # for nothing); frame 0 is the same cloud, bin and part model as a longer log's frame 0
     return synth_log(tmp_path_factory.mktemp("fitseeds") / "spheres.mcap", parts="spheres", frames=1, seed=SEED,
                      size=SIZE)
-
-
-@pytest.fixture(scope="module")
-def fits_memo() -> dict:
-    return {}
-
-
-@pytest.fixture(autouse=True)
-def fits_once(fits_memo, monkeypatch):
-    """Frame 0's background fits made once for the module's four servers (tests/annotate_helpers.py, ``fits_once``:
-    keyed by the content of every input): what the tests check is the seeds' way through the store, with the
-    deterministic fits a restarted server finds again (module docstring)."""
-    from annotate_helpers import fits_once as memoize
-
-    memoize(monkeypatch, fits_memo)
 
 
 def _server(log, db, annotator="alice"):

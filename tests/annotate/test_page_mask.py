@@ -17,7 +17,9 @@ from annotate.server import open_page as open_server_page
 from annotate.store import LabelStore
 from replay.options import PipelineOptions
 
-pytestmark = [pytest.mark.browser, pytest.mark.slow]
+# frame 0's background fits made once for the module's three servers: the tests check how the page draws and saves
+# the fits' proposals (tests/annotate/conftest.py, ``fits_once``)
+pytestmark = [pytest.mark.browser, pytest.mark.slow, pytest.mark.usefixtures("fits_once")]
 
 SIZE = "480x300"
 SEED = 9187  # used by no other test
@@ -36,20 +38,6 @@ def spheres_log(tmp_path_factory):
 
 def _server(log, db):
     return LiveServer(open_server_page(log, db, annotator="alice", choose_bin_model=PipelineOptions().model_chooser()))
-
-
-@pytest.fixture(scope="module")
-def fits_memo() -> dict:
-    return {}
-
-
-@pytest.fixture(autouse=True)
-def fits_once(fits_memo, monkeypatch):
-    """Frame 0's background fits made once for the module's three servers (tests/annotate_helpers.py, ``fits_once``:
-    keyed by the content of every input): the tests check how the page draws and saves the fits' proposals."""
-    from annotate_helpers import fits_once as memoize
-
-    memoize(monkeypatch, fits_memo)
 
 
 def _url(srv) -> str:
