@@ -49,6 +49,16 @@ def _load_old(tree: Path, where: Path) -> ModuleType:
     return mod
 
 
+def scored(truth: BF.Truth, fits: Any, model: Any, zone: np.ndarray, mod: ModuleType, cpus: list[float],
+           **fields: Any) -> dict[str, Any]:
+    """One tree's fits of a frame scored by bench/bench_fits.py's ``score`` with that tree's own ``pose_error`` (``mod``,
+    its ``zcut.fits``: its model's symmetries), with ``fields``, the median and every CPU-s of its runs and the load average."""
+    BF.pose_error = mod.pose_error
+    s = BF.score(truth, fits, model, zone, with_proposals=False)
+    s.update(fields, cpu_s=float(np.median(cpus)), cpu_all=cpus, load=os.getloadavg()[0])
+    return s
+
+
 def _truth(sensor: str, kind: str, seed: int, index: int, size: tuple[int, int], cache: str | None) -> BF.Truth:
     """bench/bench_fits.py's scene of the frame ``index`` of the seed (cached in ``cache``)."""
     import pickle
@@ -133,10 +143,8 @@ def main() -> None:
                         fits_of[name] = fits
                 for name in ("old", "new"):
                     # each tree's fits scored with its own model (its symmetries: the same group up to last bits)
-                    BF.pose_error = trees[name].pose_error
-                    s = BF.score(truth, fits_of[name], models[name], zone, with_proposals=False)
-                    s.update(sensor=sensor, frame=index, seed=args.seed, tree=name, cpu_s=float(np.median(cpus[name])),
-                             cpu_all=cpus[name], load=os.getloadavg()[0])
+                    s = scored(truth, fits_of[name], models[name], zone, trees[name], cpus[name], sensor=sensor,
+                               frame=index, seed=args.seed, tree=name)
                     rows.append(s)
                     print(f"{sensor:9s} {index:2d} {name:4s} {s['found_visible']:4d}/{s['visible']:<4d} "
                           f"{s['matched']:3d}/{s['fully_visible']:<3d} {s['median_mm']:7.3f} {s['p90_mm']:7.3f} "

@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import sys
 import time
 from collections.abc import Callable
@@ -176,11 +175,9 @@ def main() -> None:
                         convention("lapack")
                         fits_of[label] = fits
                 for label, mod, _, _ in trees:
-                    BF.pose_error = mod.pose_error
                     model = models[conv, "main" if mod is old else "branch"]
-                    s = BF.score(truth, fits_of[label], model, zone, with_proposals=False)
-                    s.update(sensor=sensor, frame=index, seed=args.seed, tree=label, conv=conv,
-                             cpu_s=float(np.median(cpus[label])), cpu_all=cpus[label], load=os.getloadavg()[0])
+                    s = BB.scored(truth, fits_of[label], model, zone, mod, cpus[label], sensor=sensor, frame=index,
+                                  seed=args.seed, tree=label, conv=conv)
                     rows.append(s)
                     print(f"{sensor:9s} {index:2d} {conv:6s} {label:9s} {s['found_visible']:4d}/{s['visible']:<4d} "
                           f"{s['matched']:3d}/{s['fully_visible']:<3d} {s['median_mm']:7.3f} {s['median_deg']:7.3f} "
